@@ -1,0 +1,29 @@
+"""jaxrbf: implicit surfaces f(x) = 0 from radial basis functions, in JAX.
+
+Precision: importing jaxrbf turns on JAX's 64-bit mode (`jax_enable_x64`), because the dense
+saddle-point solves need float64 (see `jaxrbf._solve`). Set the environment variable
+`JAXRBF_NO_X64=1` before importing to keep JAX's default; `fit` then refuses to run.
+"""
+
+import os as _os
+
+import jax as _jax
+
+if _os.environ.get("JAXRBF_NO_X64", "") not in ("1", "true", "yes"):
+    _jax.config.update("jax_enable_x64", True)
+
+from importlib.metadata import PackageNotFoundError as _PNF
+from importlib.metadata import version as _version
+
+from . import kernels as kernels
+from ._constraints import Constraints as Constraints
+from ._errors import InputError as InputError
+from ._errors import JaxRBFError as JaxRBFError
+from ._errors import SolveError as SolveError
+from ._fit import fit as fit
+from ._model import RBFModel as RBFModel
+
+try:
+    __version__ = _version("jaxrbf")
+except _PNF:  # running from a source tree that is not installed
+    __version__ = "0.0.0+unknown"

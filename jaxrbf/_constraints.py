@@ -1,0 +1,232 @@
+"""Interpolation constraints (paper §3): on-surface points with value 0 and off-surface points at
++d (outside) and -d (inside) along the normals, so that the system is not homogeneous."""
+
+from __future__ import annotations
+
+import sys
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._errors import InputError
+from ._prepare import diagonal, find_duplicates, polyline_normals, sample_faces, vertex_normals
+
+#: Default offset d as a fraction of the bounding-box diagonal.
+DEFAULT_OFFSET = 0.01
+#: Points closer than this fraction of the diagonal are merged.
+MERGE_TOL = 1e-6
+_SHRINK_STEPS = 8
+
+
+def _as_array(a, name: str, dims=(2, 3)) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    if a.ndim != 2:
+        raise InputError(f"`{name}` must be a 2-dimensional array of shape (n, d), got shape {a.shape}")
+    if a.shape[1] not in dims:
+        raise InputError(f"`{name}` must have {' or '.join(map(str, dims))} columns, got {a.shape[1]}")
+    if a.shape[0] == 0:
+        raise InputError(f"`{name}` is empty: it has no rows")
+    bad = ~np.all(np.isfinite(a), axis=1)
+    if bad.any():
+        raise InputError(f"`{name}` has {int(bad.sum())} rows with NaN or infinite values (first: row {int(np.argmax(bad))})")
+    return a
+
+
+def _unit_normals(normals: np.ndarray, n: int, dim: int) -> np.ndarray:
+    normals = _as_array(normals, "normals", (dim,))
+    if len(normals) != n:
+        raise InputError(f"`normals` has {len(normals)} rows but `points` has {n}; give one normal per point")
+    length = np.linalg.norm(normals, axis=1)
+    zero = length <= 1e-12 * max(float(length.max()), 1e-300)
+    if zero.any():
+        raise InputError(
+            f"`normals` has {int(zero.sum())} zero-length vectors (first: row {int(np.argmax(zero))}); "
+            "every point needs a direction to place its off-surface points"
+        )
+    return normals / length[:, None]
+
+
+def _validated_offsets(p: np.ndarray, n: np.ndarray, offset: float, sign: float) -> np.ndarray:
+    """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
+    off-surface point is its own origin; NaN marks points that never get there (dropped)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(p)
+    d = np.full(len(p), float(offset))
+    todo = np.arange(len(p))
+    for _ in range(_SHRINK_STEPS + 1):
+        q = p[todo] + sign * d[todo, None] * n[todo]
+        dist, idx = tree.query(q, workers=-1)
+        bad = (idx != todo) & (dist < d[todo] * (1 - 1e-9))
+        todo = todo[bad]
+        if len(todo) == 0:
+            break
+        d[todo] *= 0.5
+    d[todo] = np.nan
+    return d
+
+
+class Constraints(eqx.Module):
+    """Points and the values f must take there.
+
+    **Fields:**
+    - `points`: (N, d) constraint locations in the user's units.
+    - `values`: (N,) target values (0 on the surface, +/- the offset off it).
+    - `n_surface`: how many of the points are on-surface (they come first).
+    - `n_shrunk`, `n_dropped`: off-surface points whose offset was shrunk, or that were dropped,
+      because they came closer to another part of the surface than to their own origin.
+    """
+
+    points: Float[Array, "N d"]
+    values: Float[Array, " N"]
+    n_surface: int = eqx.field(static=True, default=0)
+    n_shrunk: int = eqx.field(static=True, default=0)
+    n_dropped: int = eqx.field(static=True, default=0)
+    n_merged: int = eqx.field(static=True, default=0)
+
+    @classmethod
+    def from_points(
+        cls,
+        points,
+        normals,
+        offset: float | None = None,
+        *,
+        validate: bool = True,
+        merge_tol: float = MERGE_TOL,
+    ) -> Constraints:
+        """On-surface points and their outward normals to constraints.
+
+        **Arguments:**
+        - `points`: (n, d) on-surface points, d = 2 or 3.
+        - `normals`: (n, d) outward normals (any length but zero; they are normalised).
+        - `offset`: d, in the points' units; default 1% of the bounding-box diagonal.
+        - `validate`: shrink (or drop) off-surface points that land nearer another part of the
+          surface than their own origin (Carr et al. 2001).
+        - `merge_tol`: points closer than this fraction of the diagonal are merged.
+
+        **Returns:** `Constraints` with the n on-surface points first, then the outside points
+        (value +d), then the inside points (value -d).
+        """
+        p = _as_array(points, "points")
+        nrm = _unit_normals(normals, len(p), p.shape[1])
+        diag = diagonal(p)
+        if not diag > 0:
+            raise InputError(f"all {len(p)} `points` are the same point; nothing to fit")
+        if offset is None:
+            offset = DEFAULT_OFFSET * diag
+        offset = float(offset)
+        if not (np.isfinite(offset) and offset > 0):
+            raise InputError(f"`offset` must be a positive distance, got {offset!r}")
+        drop = find_duplicates(p, merge_tol * diag)
+        p, nrm = p[~drop], nrm[~drop]
+        parts_p, parts_v = [p], [np.zeros(len(p))]
+        shrunk = dropped = 0
+        for sign in (1.0, -1.0):
+            d = _validated_offsets(p, nrm, offset, sign) if validate else np.full(len(p), offset)
+            keep = np.isfinite(d)
+            shrunk += int(np.sum(keep & (d < offset)))
+            dropped += int(np.sum(~keep))
+            parts_p.append(p[keep] + sign * d[keep, None] * nrm[keep])
+            parts_v.append(sign * d[keep])
+        return cls(
+            jnp.asarray(np.concatenate(parts_p)),
+            jnp.asarray(np.concatenate(parts_v)),
+            n_surface=len(p),
+            n_shrunk=shrunk,
+            n_dropped=dropped,
+            n_merged=int(drop.sum()),
+        )
+
+    @classmethod
+    def from_mesh(
+        cls,
+        vertices,
+        faces,
+        offset: float | None = None,
+        *,
+        points: int | None = None,
+        sampling: str = "faces",
+        seed: int = 0,
+        validate: bool = True,
+    ) -> Constraints:
+        """Constraints from a triangle mesh.
+
+        **Arguments:**
+        - `vertices` (n, 3), `faces` (m, 3) integer indices.
+        - `offset`: d in the mesh's units (default 1% of the diagonal).
+        - `points`: how many surface points to use. With `sampling="faces"` (default) that many
+          points are drawn uniformly over the area, each with its face's normal (default: as many
+          as the mesh has vertices). With `sampling="vertices"` the vertices are used with
+          area-weighted vertex normals, subsampled at random to `points` if given.
+        - `seed`: for the random sampling.
+        """
+        v = _as_array(vertices, "vertices", (3,))
+        f = np.asarray(faces)
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise InputError(f"`faces` must be a non-empty (m, 3) array of vertex indices, got shape {f.shape}")
+        if f.min() < 0 or f.max() >= len(v):
+            raise InputError(f"`faces` refers to vertex {int(f.max())} but there are only {len(v)} vertices")
+        f = f.astype(np.int64)
+        if points is not None and int(points) < 1:
+            raise InputError(f"`points` must be a positive number of samples, got {points}")
+        if sampling == "faces":
+            p, nrm = sample_faces(v, f, int(points) if points else len(v), seed)
+        elif sampling == "vertices":
+            used = np.zeros(len(v), dtype=bool)
+            used[f.ravel()] = True
+            vn = vertex_normals(v, f)
+            used &= np.linalg.norm(vn, axis=1) > 0
+            p, nrm = v[used], vn[used]
+            if points and int(points) < len(p):
+                idx = np.random.default_rng(seed).choice(len(p), int(points), replace=False)
+                p, nrm = p[idx], nrm[idx]
+        else:
+            raise InputError(f"`sampling` must be 'faces' or 'vertices', got {sampling!r}")
+        return cls.from_points(p, nrm, offset, validate=validate)
+
+    @classmethod
+    def from_polyline(
+        cls,
+        vertices,
+        closed: bool | None = None,
+        offset: float | None = None,
+        *,
+        validate: bool = True,
+    ) -> Constraints:
+        """Constraints from a 2-D polyline, with normals from its segments.
+
+        **Arguments:**
+        - `vertices`: (n, 2).
+        - `closed`: whether the last vertex joins the first; default: closed if the first and
+          last vertices are equal (the repeated vertex is dropped).
+        - `offset`: d in the polyline's units (default 1% of the diagonal).
+
+        A closed polyline's normals point out of the region it encloses; an open polyline's point
+        to the right of its walking direction.
+        """
+        v = _as_array(vertices, "vertices", (2,))
+        if closed is None:
+            closed = len(v) > 2 and bool(np.all(v[0] == v[-1]))
+        if closed and len(v) > 1 and np.all(v[0] == v[-1]):
+            v = v[:-1]
+        if len(v) < (3 if closed else 2):
+            raise InputError(f"a {'closed' if closed else 'open'} polyline needs at least {3 if closed else 2} distinct vertices, got {len(v)}")
+        return cls.from_points(v, polyline_normals(v, closed), offset, validate=validate)
+
+    def report(self) -> str:
+        """One line that says what the constraints hold."""
+        line = f"{self.points.shape[0]:,} constraints ({self.n_surface:,} on the surface)"
+        extras = []
+        if self.n_merged:
+            extras.append(f"{self.n_merged} duplicate points merged")
+        if self.n_shrunk:
+            extras.append(f"{self.n_shrunk} offsets shrunk")
+        if self.n_dropped:
+            extras.append(f"{self.n_dropped} off-surface points dropped")
+        return line + (f"; {', '.join(extras)}" if extras else "")
+
+
+def log(msg: str) -> None:
+    print(f"jaxrbf: {msg}", file=sys.stderr, flush=True)

@@ -1,0 +1,190 @@
+"""`fit`: scattered-data interpolation with RBFs (paper eq. 3-8), the core every other path uses."""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._constraints import Constraints, _as_array, log
+from ._errors import InputError, SolveError
+from ._model import RBFModel, n_poly
+from ._prepare import find_duplicates, unit_box_transform
+from ._solve import SOLVERS, solve_system
+from .kernels import AbstractKernel, make_kernel
+
+#: Dense solves at or above this many unknowns crash OpenBLAS's multithreaded LU on the reference
+#: machine (a segmentation fault, which cannot be caught; see DESIGN.md), so they are refused.
+DENSE_LIMIT = 21_000
+#: A fit whose relative residual max|B x - rhs| / max|rhs| exceeds this is an error.
+RESIDUAL_TOL = 1e-6
+
+
+def _available_memory() -> int | None:
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
+
+
+def _check_size(n: int, solver: str) -> None:
+    if solver not in ("lu", "cholesky"):
+        return
+    if n >= DENSE_LIMIT:
+        raise InputError(
+            f"{n:,} unknowns is too many for the dense {solver} solver (limit {DENSE_LIMIT:,}: larger "
+            "dense LAPACK solves crash OpenBLAS); use solver='gmres' (matrix-free) or fewer points"
+        )
+    need = 3 * 8 * n * n
+    avail = _available_memory()
+    if avail is not None and need > avail:
+        raise InputError(
+            f"the dense {solver} solve of {n:,} unknowns needs about {need / 2**30:.1f} GiB but "
+            f"{avail / 2**30:.1f} GiB is available; use solver='gmres' or fewer points"
+        )
+
+
+def fit(
+    points,
+    values=None,
+    *,
+    kernel: str | AbstractKernel = "cubic",
+    degree: int = 1,
+    smoothing: float = 0.0,
+    solver: str = "lu",
+    radius: float | None = None,
+    rtol: float = 1e-11,
+    max_steps: int | None = None,
+    verbose: bool = False,
+) -> RBFModel:
+    """Fit f(x) = sum_j w_j phi(|x - c_j|) + p(x) through `values` at `points` (eq. 5-6).
+
+    Like `scipy.interpolate.RBFInterpolator(points, values, kernel=..., degree=..., smoothing=...,
+    epsilon=1/radius)`, with the centres at the points. Inputs are shifted and scaled into the unit
+    box before the solve (one uniform scale), and the model keeps that transform, so it is evaluated
+    in the input's own coordinates.
+
+    **Arguments:**
+    - `points`: (n, d) array, or a `Constraints` (then `values` must be None).
+    - `values`: (n,) values at the points.
+    - `kernel`: a name from `jaxrbf.kernels.KERNELS` (`cubic`, `linear`, `thin-plate`, `gaussian`,
+      `multiquadric`, `inverse-multiquadric`, `wendland`) or a kernel instance.
+    - `degree`: polynomial degree: 1 (the paper's eq. 6), 0 or -1 (none); at least the kernel's
+      `min_degree`.
+    - `smoothing`: lambda >= 0 added to the diagonal (A + lambda I); 0 interpolates.
+    - `solver`: `lu` (the paper's), `cholesky` (null-space form), `gmres` (matrix-free:
+      the kernel matrix is applied block by block and never stored).
+    - `radius`: the kernel's length scale in the points' units (Gaussian, multiquadrics, Wendland's
+      radius of support); not used by the others.
+    - `rtol`, `max_steps`: tolerance and iteration cap of the iterative solvers.
+    - `verbose`: report the solve and its residual on stderr.
+
+    **Returns:** an `RBFModel`. Its `residual` is the relative residual of the solve.
+
+    **Raises:** `InputError` for unusable input (with what was expected), `SolveError` when the
+    system is singular or the solution does not reproduce the constraints.
+
+    Precision: float64 throughout (see `jaxrbf._solve`).
+    """
+    if not jax.config.jax_enable_x64:
+        raise InputError(
+            "fit needs JAX's 64-bit mode, which was turned off after importing jaxrbf; "
+            "call jax.config.update('jax_enable_x64', True)"
+        )
+    if isinstance(points, Constraints):
+        if values is not None:
+            raise InputError("give either `Constraints` or `points` and `values`, not both")
+        points, values = points.points, points.values
+    elif values is None:
+        raise InputError("`values` is missing: give the value f must take at each point")
+    x = _as_array(points, "points", dims=range(1, 100))
+    h = np.asarray(values, dtype=float)
+    if h.ndim != 1 or len(h) != len(x):
+        raise InputError(f"`values` must have shape ({len(x)},) to match `points`, got {h.shape}")
+    if not np.all(np.isfinite(h)):
+        raise InputError(f"`values` has {int(np.sum(~np.isfinite(h)))} NaN or infinite entries")
+    if solver not in SOLVERS:
+        raise InputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}")
+    if degree not in (-1, 0, 1):
+        raise InputError(f"`degree` must be -1 (no polynomial), 0 or 1, got {degree!r}")
+    smoothing = float(smoothing)
+    if not (np.isfinite(smoothing) and smoothing >= 0):
+        raise InputError(f"`smoothing` must be a number >= 0, got {smoothing!r}")
+    kern = make_kernel(kernel, radius)
+    if degree < kern.min_degree:
+        raise InputError(
+            f"the {kern.name} kernel needs a polynomial of degree >= {kern.min_degree} for a "
+            f"well-posed system, got degree={degree}"
+        )
+    n, dim = x.shape
+    k = n_poly(degree, dim)
+    if n <= k:
+        raise InputError(f"{n} points cannot determine a degree-{degree} polynomial in {dim}-D plus weights; give more than {k}")
+    if not np.any(h != 0):
+        raise InputError(
+            "every value is 0, so the only solution is f = 0 (the paper's trivial solution); "
+            "add off-surface points, e.g. with Constraints.from_points(points, normals)"
+        )
+    shift, scale = unit_box_transform(x)
+    xn = (x - shift) / scale
+    if smoothing == 0:
+        dup = find_duplicates(xn, 1e-9)
+        if dup.any():
+            j = int(np.argmax(dup))
+            raise InputError(
+                f"`points` has {int(dup.sum())} duplicate points (first: row {j}); an interpolant cannot "
+                "take two values at one point: merge them or set smoothing > 0"
+            )
+    if degree == 1:
+        s = np.linalg.svd(xn - xn.mean(axis=0), compute_uv=False)
+        if s[-1] <= 1e-9 * s[0]:
+            raise InputError(
+                f"all {n} points lie on one {'plane' if dim == 3 else 'hyperplane'}, so the degree-1 "
+                "polynomial is not determined; use degree=0 or add points off that plane"
+            )
+    _check_size(n + k, solver)
+    kern = kern.scaled(1.0 / scale)
+    t0 = time.perf_counter()
+    if verbose:
+        log(f"solving {n + k:,} unknowns: {kern.name} kernel, degree {degree}, {solver}, float64")
+    sol = solve_system(
+        kern, jnp.asarray(xn), jnp.asarray(h), jnp.asarray(smoothing), degree, solver, rtol, max_steps
+    )
+    residual = float(sol.residual)
+    steps = int(sol.steps)
+    finite = bool(jnp.all(jnp.isfinite(sol.weights)) & jnp.all(jnp.isfinite(sol.coeffs)))
+    if verbose:
+        extra = f", {steps} iterations" if solver == "gmres" else ""
+        log(f"solved in {time.perf_counter() - t0:.2f} s; relative residual {residual:.2e}{extra}")
+    if not finite or not np.isfinite(residual):
+        raise SolveError(
+            f"the {solver} solve produced NaN or infinite weights: the system is singular "
+            "(duplicate or degenerate points, or a kernel radius far too large); "
+            "try smoothing > 0 or another kernel"
+        )
+    if residual > RESIDUAL_TOL:
+        why = (
+            f"{solver} stopped after {steps} iterations without converging"
+            if solver == "gmres" and not bool(sol.ok)
+            else "the system is nearly singular"
+        )
+        raise SolveError(
+            f"the fit does not reproduce its constraints: relative residual {residual:.2e} > "
+            f"{RESIDUAL_TOL:.0e} ({why}); try solver='lu', smoothing > 0, or fewer/cleaner points"
+        )
+    return RBFModel(
+        centres=jnp.asarray(xn),
+        weights=sol.weights,
+        coeffs=sol.coeffs,
+        kernel=kern,
+        shift=jnp.asarray(shift),
+        scale=jnp.asarray(scale),
+        residual=jnp.asarray(residual),
+        degree=degree,
+    )

@@ -1,0 +1,139 @@
+"""The fitted RBF model: an equinox pytree that evaluates f, its gradient and the unit normal."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from .kernels import AbstractKernel
+
+# Elements of one (rows x centres) kernel block: 2**21 float64 = 16 MiB, whatever the input size.
+_BLOCK_ELEMENTS = 2**21
+
+
+def block_rows(n_centres: int) -> int:
+    """Rows of a kernel block for `n_centres` columns: a power of two in [16, 4096]."""
+    rows = max(16, min(4096, _BLOCK_ELEMENTS // max(n_centres, 1)))
+    return 1 << (rows.bit_length() - 1)
+
+
+def pairwise_sq(x: Float[Array, "b d"], c: Float[Array, "m d"]) -> Float[Array, "b m"]:
+    """Squared distances, one coordinate at a time (faster than broadcasting a (b, m, d) array and
+    more accurate than the Gram form |x|^2 + |c|^2 - 2 x.c)."""
+    r2 = jnp.zeros((x.shape[0], c.shape[0]), dtype=jnp.result_type(x, c))
+    for k in range(x.shape[1]):
+        r2 = r2 + (x[:, k, None] - c[None, :, k]) ** 2
+    return r2
+
+
+def kernel_block(kernel: AbstractKernel, x: Array, c: Array) -> Array:
+    return kernel.from_r2(pairwise_sq(x, c))
+
+
+def n_poly(degree: int, dim: int) -> int:
+    """Number of polynomial terms: 0 (no polynomial), 1 (constant) or 1 + dim (linear)."""
+    return {-1: 0, 0: 1, 1: 1 + dim}[degree]
+
+
+def poly_basis(x: Float[Array, "n d"], degree: int) -> Float[Array, "n k"]:
+    """The monomials [1, x_1, ..., x_d] (degree 1), [1] (degree 0) or none (degree -1)."""
+    ones = jnp.ones((x.shape[0], 1), dtype=x.dtype)
+    if degree < 0:
+        return jnp.zeros((x.shape[0], 0), dtype=x.dtype)
+    if degree == 0:
+        return ones
+    return jnp.concatenate([ones, x], axis=1)
+
+
+def map_blocks(fn: Callable[[Array], Array], x: Float[Array, "n d"], rows: int) -> Array:
+    """Apply `fn` to fixed-size row blocks of `x` (the last one padded) and join the results.
+
+    The block size is fixed, so memory is bounded for any `n` and the compiled block is reused.
+    """
+    n = x.shape[0]
+    if n <= rows:
+        return fn(x)
+    nb = -(-n // rows)
+    pad = nb * rows - n
+    xp = jnp.concatenate([x, jnp.broadcast_to(x[:1], (pad,) + x.shape[1:])]) if pad else x
+    out = jax.lax.map(fn, xp.reshape((nb, rows) + x.shape[1:]))
+    return out.reshape((nb * rows,) + out.shape[2:])[:n]
+
+
+class RBFModel(eqx.Module):
+    """f(x) = sum_j w_j phi(|x' - c_j|) + p(x'), with x' = (x - shift) / scale (paper eq. 5).
+
+    Centres, weights and polynomial coefficients live in the normalised frame (the unit box the fit
+    was solved in); `shift` and `scale` map the user's coordinates into it, so the model is called
+    with points in the user's own units. All arrays are leaves: the model can be differentiated,
+    vmapped and jitted like any pytree.
+
+    **Fields:**
+    - `centres`: (m, d) centres, normalised.
+    - `weights`: (m,) RBF weights.
+    - `coeffs`: (k,) coefficients of [1, x'_1, ..., x'_d] (k = 0, 1 or d + 1).
+    - `kernel`: the kernel, its radius in normalised units.
+    - `shift`, `scale`: the normalising transform.
+    - `residual`: max-norm relative residual of the solve that produced the model.
+    - `degree`: polynomial degree (-1, 0 or 1), static.
+    """
+
+    centres: Float[Array, "m d"]
+    weights: Float[Array, " m"]
+    coeffs: Float[Array, " k"]
+    kernel: AbstractKernel
+    shift: Float[Array, " d"]
+    scale: Float[Array, ""]
+    residual: Float[Array, ""]
+    degree: int = eqx.field(static=True)
+
+    @property
+    def dim(self) -> int:
+        return self.centres.shape[1]
+
+    def normalise(self, x: Array) -> Array:
+        return (x - self.shift) / self.scale
+
+    def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
+        phi = kernel_block(self.kernel, xn, self.centres)
+        return phi @ self.weights + poly_basis(xn, self.degree) @ self.coeffs
+
+    def _flat(self, x: ArrayLike) -> tuple[Array, tuple[int, ...]]:
+        x = jnp.asarray(x)
+        if x.ndim < 1 or x.shape[-1] != self.dim:
+            raise ValueError(
+                f"points must have shape (..., {self.dim}) for this {self.dim}-D model, got {x.shape}"
+            )
+        return x.reshape(-1, self.dim).astype(self.centres.dtype), x.shape[:-1]
+
+    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
+        """f at points `x` of shape (..., d); returns shape (...)."""
+        flat, lead = self._flat(x)
+        rows = block_rows(self.centres.shape[0])
+        out = map_blocks(lambda b: self._eval_normalised(self.normalise(b)), flat, rows)
+        return out.reshape(lead)
+
+    def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
+        """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
+        flat, lead = self._flat(x)
+        rows = block_rows(self.centres.shape[0])
+
+        def block(b):
+            return jax.grad(lambda y: jnp.sum(self._eval_normalised(self.normalise(y))))(b)
+
+        return map_blocks(block, flat, rows).reshape(lead + (self.dim,))
+
+    def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
+        """The unit normal grad f / |grad f| (outward: f grows outside)."""
+        g = self.gradient(x)
+        norm = jnp.linalg.norm(g, axis=-1, keepdims=True)
+        return g / jnp.where(norm > 0, norm, 1.0)
+
+    def bounds(self) -> tuple[Array, Array]:
+        """Bounding box (lo, hi) of the centres in the user's coordinates."""
+        world = self.centres * self.scale + self.shift
+        return world.min(axis=0), world.max(axis=0)

@@ -1,0 +1,112 @@
+"""Host-side preparation: the normalising transform, duplicate merging, normals from meshes and
+polylines. numpy and scipy only: this is the host end of the pipeline (see DESIGN.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._errors import InputError
+
+
+def bounding_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return points.min(axis=0), points.max(axis=0)
+
+
+def diagonal(points: np.ndarray) -> float:
+    lo, hi = bounding_box(np.asarray(points))
+    return float(np.linalg.norm(hi - lo))
+
+
+def unit_box_transform(points: np.ndarray, name: str = "points") -> tuple[np.ndarray, float]:
+    """Shift and one uniform scale that map `points` into the box [-1/2, 1/2]^d.
+
+    One scale for every axis (per-axis scaling would distort distances and so the RBF fit).
+
+    **Returns:** `(shift, scale)`, with normalised = (x - shift) / scale.
+    """
+    lo, hi = bounding_box(points)
+    scale = float(np.max(hi - lo))
+    if not scale > 0:
+        raise InputError(
+            f"all {len(points)} `{name}` are the same point; a fit needs points that span some extent"
+        )
+    return (lo + hi) / 2.0, scale
+
+
+def find_duplicates(points: np.ndarray, tol: float) -> np.ndarray:
+    """Boolean mask of points that lie within `tol` of an earlier point (to drop)."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(r=tol, output_type="ndarray")
+    drop = np.zeros(len(points), dtype=bool)
+    if len(pairs):
+        drop[np.max(pairs, axis=1)] = True
+    return drop
+
+
+def check_not_flat(points: np.ndarray, what: str = "points") -> None:
+    """Raise when the points lie on one hyperplane (a plane in 3-D, a line in 2-D)."""
+    centred = points - points.mean(axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    if s[0] == 0 or s[-1] <= 1e-9 * s[0]:
+        shape = "plane" if points.shape[1] == 3 else "line"
+        raise InputError(
+            f"all {len(points)} {what} lie on one {shape}: they enclose no volume, so no closed "
+            "surface can be reconstructed from them"
+        )
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (sum of the unnormalised face normals around each vertex)."""
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], fn)
+    return vn
+
+
+def sample_faces(
+    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """`n` points uniform over the mesh's area, each with its face's unit normal."""
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(fn, axis=1)
+    if not np.any(area > 0):
+        raise InputError("every face of the mesh has zero area: there is no surface to sample")
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(len(faces), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    t = tri[idx]
+    pts = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
+    return pts, fn[idx] / area[idx, None]
+
+
+def polyline_normals(vertices: np.ndarray, closed: bool) -> np.ndarray:
+    """Unit normals at the vertices of a 2-D polyline (mean of the adjacent segments' normals).
+
+    A closed polyline's normals point out of the region it encloses, whichever way it winds. An open
+    polyline has no inside: its normals point to the right of the walking direction.
+    """
+    v = np.asarray(vertices, dtype=float)
+    seg = (np.roll(v, -1, axis=0) - v) if closed else np.diff(v, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    if np.any(length == 0):
+        raise InputError("the polyline has repeated consecutive vertices (a zero-length segment)")
+    sn = np.stack([seg[:, 1], -seg[:, 0]], axis=1) / length[:, None]
+    if closed:
+        signed_area = 0.5 * np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])
+        if signed_area < 0:
+            sn = -sn
+        vn = sn + np.roll(sn, 1, axis=0)
+    else:
+        vn = np.zeros_like(v)
+        vn[:-1] += sn
+        vn[1:] += sn
+    norm = np.linalg.norm(vn, axis=1, keepdims=True)
+    if np.any(norm == 0):
+        raise InputError("the polyline folds back on itself (a vertex whose segments cancel)")
+    return vn / norm

@@ -1,0 +1,44 @@
+"""The saddle-point system of the paper's eq. 6-8, dense and matrix-free.
+
+    B [w; a] = [h; 0],   B = [[A + s I, P], [P^T, 0]],   A_ij = phi(|c_i - c_j|),   P_i = p(c_i)
+
+`s` is the smoothing parameter (0 interpolates). The dense form stores B (O(n^2) memory); the
+matrix-free form applies A in fixed-size row blocks (O(block * n) memory) and never stores it.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._model import block_rows, kernel_block, map_blocks, poly_basis
+from .kernels import AbstractKernel
+
+
+def kernel_matrix(kernel: AbstractKernel, centres: Array, smoothing) -> Float[Array, "n n"]:
+    """A + s I, dense."""
+    n = centres.shape[0]
+    return kernel_block(kernel, centres, centres) + smoothing * jnp.eye(n, dtype=centres.dtype)
+
+
+def saddle_matrix(kernel: AbstractKernel, centres: Array, degree: int, smoothing) -> Array:
+    """B of eq. 8, dense."""
+    a = kernel_matrix(kernel, centres, smoothing)
+    p = poly_basis(centres, degree)
+    k = p.shape[1]
+    top = jnp.concatenate([a, p], axis=1)
+    bottom = jnp.concatenate([p.T, jnp.zeros((k, k), dtype=a.dtype)], axis=1)
+    return jnp.concatenate([top, bottom], axis=0)
+
+
+def kernel_matvec(kernel: AbstractKernel, centres: Array, v: Array, smoothing) -> Array:
+    """(A + s I) v, block by block: A is never stored."""
+    rows = block_rows(centres.shape[0])
+    av = map_blocks(lambda xb: kernel_block(kernel, xb, centres) @ v, centres, rows)
+    return av + smoothing * v
+
+
+def saddle_matvec(kernel, centres, degree: int, smoothing, w: Array, a: Array) -> tuple[Array, Array]:
+    """B [w; a], matrix-free."""
+    p = poly_basis(centres, degree)
+    return kernel_matvec(kernel, centres, w, smoothing) + p @ a, p.T @ w

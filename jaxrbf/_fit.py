@@ -150,6 +150,9 @@ def fit(
             )
     _check_size(n + k, solver)
     kern = kern.scaled(1.0 / scale)
+    # The solve runs in the unit box; scale the smoothing so that it means what it means in the
+    # input's units (as in scipy's RBFInterpolator): A_unit = A_input / scale^homogeneity.
+    smoothing = smoothing / scale**kern.homogeneity
     t0 = time.perf_counter()
     if verbose:
         log(f"solving {n + k:,} unknowns: {kern.name} kernel, degree {degree}, {solver}, float64")

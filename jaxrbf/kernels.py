@@ -43,6 +43,7 @@ __all__ = [
     "ThinPlate",
     "Wendland",
     "KERNELS",
+    "kernel_class",
     "make_kernel",
 ]
 
@@ -65,6 +66,9 @@ class AbstractKernel(eqx.Module):
     min_degree: ClassVar[int]
     positive_definite: ClassVar[bool]
     has_radius: ClassVar[bool] = False
+    #: phi(s r) = s^k phi(r) up to a polynomial the fit absorbs (0 for kernels with a radius, which
+    #: scales with the coordinates instead). Used to express `smoothing` in the input's units.
+    homogeneity: ClassVar[int] = 0
 
     def from_r2(self, r2: Float[Array, "..."]) -> Float[Array, "..."]:
         raise NotImplementedError
@@ -80,6 +84,7 @@ class AbstractKernel(eqx.Module):
 
 
 class Linear(AbstractKernel):
+    homogeneity: ClassVar[int] = 1
     name: ClassVar[str] = "linear"
     min_degree: ClassVar[int] = 0
     positive_definite: ClassVar[bool] = False
@@ -89,6 +94,7 @@ class Linear(AbstractKernel):
 
 
 class Cubic(AbstractKernel):
+    homogeneity: ClassVar[int] = 3
     name: ClassVar[str] = "cubic"
     min_degree: ClassVar[int] = 1
     positive_definite: ClassVar[bool] = False
@@ -98,6 +104,7 @@ class Cubic(AbstractKernel):
 
 
 class ThinPlate(AbstractKernel):
+    homogeneity: ClassVar[int] = 2
     name: ClassVar[str] = "thin-plate"
     min_degree: ClassVar[int] = 1
     positive_definite: ClassVar[bool] = False
@@ -189,6 +196,16 @@ _ALIASES = {
 }
 
 
+def kernel_class(name: str) -> type[AbstractKernel]:
+    """The kernel class for a name (scipy's spellings are accepted)."""
+    if not isinstance(name, str):
+        raise InputError(f"`kernel` must be a name or an AbstractKernel, got {type(name).__name__}")
+    key = _ALIASES.get(name.lower(), name.lower())
+    if key not in KERNELS:
+        raise InputError(f"unknown kernel {name!r}; expected one of {', '.join(KERNELS)}")
+    return KERNELS[key]
+
+
 def make_kernel(kernel: str | AbstractKernel, radius: float | Array | None = None) -> AbstractKernel:
     """A kernel from its name (scipy's spellings are accepted) or an instance.
 
@@ -202,12 +219,8 @@ def make_kernel(kernel: str | AbstractKernel, radius: float | Array | None = Non
         if radius is not None:
             raise InputError("`radius` was given together with a kernel instance; set it on the kernel")
         return kernel
-    if not isinstance(kernel, str):
-        raise InputError(f"`kernel` must be a name or an AbstractKernel, got {type(kernel).__name__}")
-    key = _ALIASES.get(kernel.lower(), kernel.lower())
-    if key not in KERNELS:
-        raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
-    cls = KERNELS[key]
+    cls = kernel_class(kernel)
+    key = cls.name
     if cls.has_radius:
         if radius is None:
             raise InputError(

@@ -1,0 +1,175 @@
+"""One-shot helpers: a file or arrays in, a model or a mesh out. The CLI is a thin shell over these.
+
+Here `offset` and `radius` are fractions of the input's bounding-box diagonal (as on the command
+line), so the defaults do not depend on the input's units. The building blocks (`Constraints`,
+`fit`) take them in the input's own units.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from ._constraints import DEFAULT_OFFSET, Constraints, log
+from ._errors import InputError
+from ._fit import fit
+from ._model import RBFModel
+from ._prepare import check_not_flat, diagonal
+
+#: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
+#: 2-core CPU. Larger inputs are subsampled to this unless `points` says otherwise.
+DEFAULT_POINTS = 4000
+#: Default kernel radius (kernels that have one), as a fraction of the diagonal.
+DEFAULT_RADIUS = 0.1
+EXAMPLES = ("bunny",)
+
+
+def example(name: str = "bunny") -> tuple[np.ndarray, np.ndarray]:
+    """The bundled example: `(points, normals)` sampled on the Stanford bunny (see
+    `jaxrbf/data/README.md` for its source and attribution)."""
+    from importlib.resources import files
+
+    if name not in EXAMPLES:
+        raise InputError(f"unknown example {name!r}; expected one of {', '.join(EXAMPLES)}")
+    with files("jaxrbf").joinpath("data", f"{name}.npz").open("rb") as fh, np.load(fh) as z:
+        return np.asarray(z["points"], dtype=float), np.asarray(z["normals"], dtype=float)
+
+
+def _subsample(p, n, k, seed):
+    if k is None:
+        k = min(len(p), DEFAULT_POINTS)
+    if k < len(p):
+        idx = np.sort(np.random.default_rng(seed).choice(len(p), k, replace=False))
+        return p[idx], n[idx]
+    return p, n
+
+
+def constraints_from(
+    source,
+    normals=None,
+    *,
+    points: int | None = None,
+    sampling: str = "faces",
+    offset: float | None = None,
+    seed: int = 0,
+    verbose: bool = False,
+) -> Constraints:
+    """Constraints from a file path (mesh, point cloud with normals, 2-D polyline) or from arrays.
+
+    **Arguments:**
+    - `source`: a path, or an (n, d) array of surface points (then `normals` is required).
+    - `points`: surface points to use (default: all, at most `DEFAULT_POINTS`).
+    - `sampling`: for meshes, `faces` (uniform samples with face normals) or `vertices`
+      (area-weighted vertex normals).
+    - `offset`: d as a fraction of the bounding-box diagonal (default 0.01).
+    """
+    from . import io
+
+    frac = DEFAULT_OFFSET if offset is None else float(offset)
+    if not (np.isfinite(frac) and frac > 0):
+        raise InputError(f"`offset` must be a positive fraction of the diagonal, got {offset!r}")
+    if points is not None and int(points) < 1:
+        raise InputError(f"`points` must be a positive number, got {points}")
+    if isinstance(source, (str, os.PathLike)):
+        data = io.read_input(source)
+        name = os.fspath(source)
+    else:
+        if normals is None:
+            raise InputError("`normals` are needed with an array of points (one outward normal per point)")
+        data = io.PointCloud(io.as_points(source, "points"), np.asarray(normals, dtype=float))
+        name = "the points"
+    if isinstance(data, io.Mesh):
+        v, f = data.vertices, data.faces
+        check_not_flat(v, f"vertices of {name}")
+        k = points if points is not None else min(len(v), DEFAULT_POINTS)
+        if verbose and points is None and len(v) > DEFAULT_POINTS:
+            log(f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)")
+        c = Constraints.from_mesh(v, f, frac * diagonal(v), points=k, sampling=sampling, seed=seed)
+    elif isinstance(data, io.Polyline):
+        c = Constraints.from_polyline(data.vertices, data.closed, frac * diagonal(data.vertices))
+    else:
+        if data.normals is None:
+            raise InputError(
+                f"{name} has points but no normals; give nx, ny, nz columns (or a mesh) so that "
+                "inside and outside are known"
+            )
+        check_not_flat(data.points, f"points of {name}")
+        if verbose and points is None and len(data.points) > DEFAULT_POINTS:
+            log(f"{name}: using {DEFAULT_POINTS:,} of {len(data.points):,} points (set --points)")
+        p, n = _subsample(data.points, data.normals, points, seed)
+        c = Constraints.from_points(p, n, frac * diagonal(p))
+    if verbose:
+        log(c.report())
+    return c
+
+
+def fit_surface(
+    source,
+    normals=None,
+    *,
+    kernel: str | None = None,
+    radius: float | None = None,
+    degree: int = 1,
+    smoothing: float = 0.0,
+    solver: str = "lu",
+    points: int | None = None,
+    sampling: str = "faces",
+    offset: float | None = None,
+    seed: int = 0,
+    verbose: bool = False,
+) -> RBFModel:
+    """Constraints from `source` (see `constraints_from`), then `fit`.
+
+    `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper;
+    `radius` (kernels that have one) is a fraction of the diagonal, default 0.1.
+    """
+    from .kernels import AbstractKernel, kernel_class
+
+    c = constraints_from(
+        source, normals, points=points, sampling=sampling, offset=offset, seed=seed, verbose=verbose
+    )
+    dim = c.points.shape[1]
+    if kernel is None:
+        kernel = "cubic" if dim == 3 else "thin-plate"
+    cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
+    r = None
+    if cls.has_radius and not isinstance(kernel, AbstractKernel):
+        r = (DEFAULT_RADIUS if radius is None else float(radius)) * diagonal(np.asarray(c.points))
+    elif radius is not None:
+        raise InputError(f"the {cls.name} kernel has no radius; leave --radius unset")
+    return fit(c, kernel=kernel, radius=r, degree=degree, smoothing=smoothing, solver=solver, verbose=verbose)
+
+
+def reconstruct(
+    source,
+    normals=None,
+    *,
+    resolution: int = 128,
+    project: bool = False,
+    progress: bool | None = None,
+    verbose: bool = False,
+    **options,
+):
+    """`source` (a mesh, point cloud or polyline file, or points + normals) to a surface.
+
+    **Arguments:** `resolution` and `project` as for `polygonize`; every other option as for
+    `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `solver`, `points`, `sampling`,
+    `offset`, `seed`).
+
+    **Returns:** a `jaxrbf.io.Mesh` for 3-D input; for a 2-D polyline, a list of (k, 2) curves.
+    """
+    from ._polygonize import contour, polygonize
+
+    model = fit_surface(source, normals, verbose=verbose, **options)
+    t0 = time.perf_counter()
+    if model.dim == 2:
+        out = contour(model, resolution=resolution, progress=progress)
+        if verbose:
+            log(f"{len(out)} curves in {time.perf_counter() - t0:.1f} s")
+        return out
+    mesh = polygonize(model, resolution=resolution, project=project, progress=progress)
+    if verbose:
+        log(f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in {time.perf_counter() - t0:.1f} s")
+    return mesh

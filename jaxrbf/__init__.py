@@ -15,13 +15,24 @@ if _os.environ.get("JAXRBF_NO_X64", "") not in ("1", "true", "yes"):
 from importlib.metadata import PackageNotFoundError as _PNF
 from importlib.metadata import version as _version
 
+from . import io as io
 from . import kernels as kernels
+from . import metrics as metrics
 from ._constraints import Constraints as Constraints
 from ._errors import InputError as InputError
 from ._errors import JaxRBFError as JaxRBFError
 from ._errors import SolveError as SolveError
 from ._fit import fit as fit
 from ._model import RBFModel as RBFModel
+from ._polygonize import contour as contour
+from ._polygonize import polygonize as polygonize
+from ._project import project as project
+from ._reconstruct import constraints_from as constraints_from
+from ._reconstruct import example as example
+from ._reconstruct import fit_surface as fit_surface
+from ._reconstruct import reconstruct as reconstruct
+from ._serialize import load as load
+from ._serialize import save as save
 
 try:
     __version__ = _version("jaxrbf")

@@ -62,7 +62,7 @@ def load(path) -> RBFModel:
     if not os.path.isfile(path):
         raise InputError(f"model file '{path}' does not exist")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
         raise InputError(

@@ -1,0 +1,784 @@
+"""Reading and writing meshes, point clouds and 2-D polylines (host side: numpy and trimesh).
+
+Every problem with a file or an array raises `jaxrbf.InputError` with a message that names the
+file (or argument), says what is wrong and how to fix it. Writers are atomic: the output appears
+only once it is complete, and an existing file is left untouched when writing fails.
+
+| extension | reads as | written by |
+|---|---|---|
+| `.obj` `.stl` `.off` | mesh | `write_mesh` |
+| `.ply` | mesh if it has faces, else point cloud (x y z, optional nx ny nz) | `write_mesh`, `write_points` |
+| `.xyz` `.txt` | point cloud: 3 columns (x y z) or 6 (x y z nx ny nz) | `write_points` (`.xyz`) |
+| `.npz` | `points` (+ `normals`): point cloud; `vertices` + `faces`: mesh | `write_points`, `write_mesh`, `write_polylines` |
+| `.csv` `.npy` | 2-D polyline (two columns x, y) | `write_polylines` (`.csv`) |
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import warnings
+import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import InputError
+
+__all__ = [
+    "Mesh",
+    "PointCloud",
+    "Polyline",
+    "SUPPORTED",
+    "MESH_OUTPUTS",
+    "POINT_OUTPUTS",
+    "POLYLINE_OUTPUTS",
+    "as_points",
+    "atomic_output",
+    "read_mesh",
+    "read_points",
+    "read_polyline",
+    "read_input",
+    "write_mesh",
+    "write_points",
+    "write_polylines",
+]
+
+SUPPORTED: dict[str, str] = {
+    ".obj": "mesh",
+    ".ply": "mesh or point cloud",
+    ".stl": "mesh",
+    ".off": "mesh",
+    ".xyz": "point cloud",
+    ".txt": "point cloud",
+    ".npz": "point cloud or mesh",
+    ".csv": "polyline",
+    ".npy": "polyline",
+}
+"""Input extensions and what they hold (used in error messages)."""
+
+MESH_OUTPUTS = (".ply", ".obj", ".stl", ".off", ".npz")
+POINT_OUTPUTS = (".ply", ".xyz", ".npz")
+POLYLINE_OUTPUTS = (".csv", ".npz")
+_MESH_INPUTS = (".obj", ".ply", ".stl", ".off", ".npz")
+_POINT_INPUTS = (".ply", ".xyz", ".txt", ".npz")
+_POLYLINE_INPUTS = (".csv", ".npy")
+
+
+# --------------------------------------------------------------------------- containers
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh.
+
+    **Arguments:**
+    - `vertices`: (n, 3) float64 coordinates.
+    - `faces`: (m, 3) int64 vertex indices (0-based).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, dtype=np.float64)
+        f = np.asarray(self.faces)
+        if f.size == 0:
+            f = f.reshape(0, 3)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise InputError(f"mesh vertices must have shape (n, 3), got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise InputError(f"mesh faces must have shape (m, 3) (triangles), got {f.shape}")
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "faces", f.astype(np.int64, copy=False))
+
+
+@dataclass(frozen=True, eq=False)
+class PointCloud:
+    """Points with optional normals.
+
+    **Arguments:**
+    - `points`: (n, d) float64, d = 2 or 3.
+    - `normals`: (n, d) float64 or `None`.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+
+    def __post_init__(self):
+        p = np.asarray(self.points, dtype=np.float64)
+        object.__setattr__(self, "points", p)
+        if self.normals is not None:
+            n = np.asarray(self.normals, dtype=np.float64)
+            if n.shape != p.shape:
+                raise InputError(
+                    f"normals must have the same shape as the points {p.shape}, got {n.shape}"
+                )
+            object.__setattr__(self, "normals", n)
+
+
+@dataclass(frozen=True, eq=False)
+class Polyline:
+    """A 2-D polyline.
+
+    **Arguments:**
+    - `vertices`: (n, 2) float64; a closed polyline does not repeat its first vertex at the end.
+    - `closed`: whether the last vertex joins the first.
+    """
+
+    vertices: np.ndarray
+    closed: bool
+
+    def __post_init__(self):
+        object.__setattr__(self, "vertices", np.asarray(self.vertices, dtype=np.float64))
+        object.__setattr__(self, "closed", bool(self.closed))
+
+
+# --------------------------------------------------------------------------- arrays
+
+
+def as_points(array, name: str = "points", dims: tuple[int, ...] = (2, 3)) -> np.ndarray:
+    """Validate an in-memory (n, d) array of coordinates.
+
+    **Arguments:**
+    - `array`: anything `np.asarray` turns into numbers.
+    - `name`: the argument's name, used in messages.
+    - `dims`: the allowed numbers of columns d.
+
+    **Returns:** the array as C-contiguous float64 of shape (n, d).
+
+    **Raises:** `InputError` when it is not numeric, not 2-D, has a wrong d, no rows, or holds
+    NaN or infinite values.
+    """
+    try:
+        a = np.asarray(array, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"`{name}` must be an array of numbers of shape (n, d): {_short(e)}") from e
+    if a.ndim != 2:
+        raise InputError(
+            f"`{name}` must be a 2-dimensional array of shape (n, d), got shape {a.shape}"
+        )
+    if a.shape[1] not in dims:
+        raise InputError(
+            f"`{name}` must have {_choices(dims)} columns (coordinates per point), "
+            f"got shape {a.shape}"
+        )
+    if a.shape[0] == 0:
+        raise InputError(f"`{name}` is empty: it holds no points (shape {a.shape})")
+    bad = _count_nonfinite(a)
+    if bad:
+        raise InputError(
+            f"`{name}` has {bad} row{'s' if bad != 1 else ''} with NaN or infinite values; "
+            "remove or repair them"
+        )
+    return np.ascontiguousarray(a)
+
+
+def _as_faces(faces, n_vertices: int, name: str = "faces") -> np.ndarray:
+    f = np.asarray(faces)
+    if f.size == 0:
+        raise InputError(f"`{name}` is empty: a mesh needs at least one triangle")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise InputError(f"`{name}` must have shape (m, 3) (triangles), got shape {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer):
+        if not (np.issubdtype(f.dtype, np.floating) and np.all(f == np.round(f))):
+            raise InputError(f"`{name}` must hold integer vertex indices, got dtype {f.dtype}")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= n_vertices:
+        raise InputError(
+            f"`{name}` refers to vertex indices from {f.min()} to {f.max()}, but there are "
+            f"{n_vertices} vertices (indices are 0-based)"
+        )
+    return np.ascontiguousarray(f)
+
+
+def _mesh_arrays(mesh_or_vertices, faces=None) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) from a Mesh, a trimesh, a (vertices, faces) pair or two arrays."""
+    obj = mesh_or_vertices
+    if faces is None:
+        if hasattr(obj, "vertices") and hasattr(obj, "faces"):
+            obj, faces = obj.vertices, obj.faces
+        elif isinstance(obj, tuple) and len(obj) == 2:
+            obj, faces = obj
+        else:
+            raise InputError(
+                "give a Mesh, a (vertices, faces) pair, or vertices together with `faces`"
+            )
+    v = as_points(obj, "vertices", dims=(3,))
+    return v, _as_faces(faces, len(v))
+
+
+def _count_nonfinite(a: np.ndarray) -> int:
+    return int(np.count_nonzero(~np.isfinite(a).all(axis=1)))
+
+
+def _choices(items) -> str:
+    items = [str(i) for i in items]
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " or " + items[-1]
+
+
+def _short(e: BaseException, limit: int = 160) -> str:
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    msg = f"{type(e).__name__}: {msg}" if msg else type(e).__name__
+    return msg if len(msg) <= limit else msg[: limit - 3] + "..."
+
+
+# --------------------------------------------------------------------------- reading helpers
+
+
+def _ext(path) -> str:
+    return Path(path).suffix.lower()
+
+
+def _unknown(path, ext: str, allowed) -> InputError:
+    what = f"an unknown format '{ext}'" if ext else "no extension"
+    return InputError(f"'{path}' has {what}; expected one of {', '.join(allowed)}")
+
+
+def _check_file(path, allowed) -> tuple[str, str]:
+    """The path as a string and its lower-case extension; InputError if unusable."""
+    p = os.fspath(path)
+    ext = _ext(p)
+    if not os.path.exists(p):
+        raise InputError(f"input file '{p}' does not exist; check the path")
+    if os.path.isdir(p):
+        raise InputError(f"input '{p}' is a folder, not a file")
+    if ext not in allowed:
+        if ext in SUPPORTED:
+            raise InputError(
+                f"'{p}' holds a {SUPPORTED[ext]} ({ext}), which cannot be read here; expected "
+                f"one of {', '.join(allowed)} (read_input reads any supported file)"
+            )
+        raise _unknown(p, ext, allowed)
+    if os.path.getsize(p) == 0:
+        raise _empty(p)
+    return p, ext
+
+
+def _empty(p: str) -> InputError:
+    return InputError(f"'{p}' is empty: it holds no vertices")
+
+
+def _check_finite(p: str, a: np.ndarray, what: str = "vertices") -> None:
+    bad = _count_nonfinite(a)
+    if bad:
+        raise InputError(
+            f"'{p}' has {bad} {what if bad != 1 else what[:-1]} with NaN or infinite "
+            "coordinates; remove or repair them"
+        )
+
+
+def _ply_header(p: str) -> dict[str, int]:
+    """Element counts declared in a PLY header, e.g. {'vertex': 100, 'face': 196}."""
+    counts: dict[str, int] = {}
+    try:
+        with open(p, "rb") as fh:
+            first = fh.readline().strip()
+            if first != b"ply":
+                raise InputError(f"'{p}' could not be read as PLY: it does not start with 'ply'")
+            for _ in range(10_000):
+                line = fh.readline()
+                if not line:
+                    raise InputError(f"'{p}' could not be read as PLY: the header never ends")
+                words = line.split()
+                if words[:1] == [b"end_header"]:
+                    return counts
+                if words[:1] == [b"element"] and len(words) >= 3:
+                    counts[words[1].decode("ascii", "replace")] = int(words[2])
+    except (OSError, ValueError) as e:
+        raise InputError(f"'{p}' could not be read as PLY: {_short(e)}") from e
+    raise InputError(f"'{p}' could not be read as PLY: the header never ends")
+
+
+def _trimesh_load(p: str, ext: str):
+    import trimesh
+
+    try:
+        with open(p, "rb") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return trimesh.load(fh, file_type=ext[1:], process=False)
+    except InputError:
+        raise
+    except Exception as e:  # trimesh raises many kinds on corrupt input
+        raise InputError(
+            f"'{p}' could not be read as {ext[1:].upper()}: {_short(e)}; check that the file is "
+            "complete and in that format"
+        ) from e
+
+
+def _load_geometry(p: str, ext: str):
+    """(vertices, faces or None, ply vertex properties or {}) as trimesh reads them."""
+    import trimesh
+
+    g = _trimesh_load(p, ext)
+    if isinstance(g, trimesh.Scene):
+        meshes = [m for m in g.dump() if isinstance(m, trimesh.Trimesh)]
+        if meshes:
+            g = trimesh.util.concatenate(meshes) if len(meshes) > 1 else meshes[0]
+        else:
+            clouds = [m for m in g.dump() if isinstance(m, trimesh.PointCloud)]
+            if not clouds:
+                raise _empty(p)
+            g = clouds[0]
+    vertices = np.asarray(g.vertices, dtype=np.float64).reshape(-1, 3)
+    faces = getattr(g, "faces", None)
+    faces = None if faces is None or len(faces) == 0 else np.asarray(faces, dtype=np.int64)
+    props = {}
+    raw = getattr(g, "metadata", {}).get("_ply_raw")
+    if isinstance(raw, dict) and isinstance(raw.get("vertex"), dict):
+        data = raw["vertex"].get("data")
+        if isinstance(data, dict):
+            props = {k: np.asarray(v).reshape(-1) for k, v in data.items()}
+        elif data is not None and getattr(data, "dtype", None) is not None and data.dtype.names:
+            props = {k: np.asarray(data[k]).reshape(-1) for k in data.dtype.names}
+    if ext == ".ply":
+        declared = _ply_header(p).get("vertex", 0)
+        if declared != len(vertices):
+            raise InputError(
+                f"'{p}' could not be read as PLY: its header declares {declared} vertices but "
+                f"{len(vertices)} were read; the file is probably truncated"
+            )
+    return vertices, faces, props
+
+
+def _npz(p: str) -> dict[str, np.ndarray]:
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            return {k: np.asarray(z[k]) for k in z.files}
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as e:
+        raise InputError(
+            f"'{p}' could not be read as an .npz archive: {_short(e)}; the file may be truncated"
+        ) from e
+
+
+def _loadtxt(p: str, what: str, **kw) -> np.ndarray:
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data"
+            return np.loadtxt(p, dtype=np.float64, ndmin=2, **kw)
+    except (ValueError, OSError) as e:
+        raise InputError(
+            f"'{p}' could not be read as {what}: {_short(e)}; every line must hold the same "
+            "number of numbers"
+        ) from e
+
+
+# --------------------------------------------------------------------------- readers
+
+
+def read_mesh(path) -> Mesh:
+    """Read a triangle mesh (`.obj`, `.ply`, `.stl`, `.off`, or `.npz` with `vertices`, `faces`).
+
+    Nothing is merged or reordered, except in `.stl`, which stores every triangle's corners
+    separately: there, exactly coincident corners are joined so the mesh is connected.
+
+    **Arguments:**
+    - `path`: the file.
+
+    **Returns:** a `Mesh`.
+
+    **Raises:** `InputError` for a missing, empty, corrupt or unknown file, a file without
+    faces, NaN or infinite coordinates, or out-of-range face indices.
+    """
+    p, ext = _check_file(path, _MESH_INPUTS)
+    if ext == ".npz":
+        return _npz_mesh(p, _npz(p))
+    vertices, faces, _ = _load_geometry(p, ext)
+    if len(vertices) == 0:
+        raise _empty(p)
+    if faces is None:
+        raise InputError(
+            f"'{p}' has vertices but no faces; a mesh needs triangles (for a point cloud use "
+            "read_points or read_input, with normals)"
+        )
+    _check_finite(p, vertices)
+    if ext == ".stl":
+        vertices, inverse = np.unique(vertices, axis=0, return_inverse=True)
+        faces = inverse.reshape(-1)[faces]
+    return _validated_mesh(p, vertices, faces)
+
+
+def _validated_mesh(p: str, vertices: np.ndarray, faces: np.ndarray) -> Mesh:
+    try:
+        faces = _as_faces(faces, len(vertices))
+    except InputError as e:
+        raise InputError(f"'{p}': {e}") from None
+    return Mesh(np.ascontiguousarray(vertices, dtype=np.float64), faces)
+
+
+def _npz_mesh(p: str, z: dict[str, np.ndarray]) -> Mesh:
+    if "vertices" not in z or "faces" not in z:
+        raise InputError(
+            f"'{p}' has arrays {sorted(z)}; a mesh .npz needs `vertices` (n, 3) and `faces` (m, 3)"
+        )
+    v, f = z["vertices"], z["faces"]
+    if v.ndim != 2 or v.shape[1] != 3 or not np.issubdtype(v.dtype, np.number):
+        raise InputError(f"'{p}': `vertices` must have shape (n, 3), got {v.shape}")
+    if len(v) == 0:
+        raise _empty(p)
+    v = v.astype(np.float64)
+    _check_finite(p, v)
+    if f.size == 0:
+        raise InputError(f"'{p}' has vertices but no faces; a mesh needs triangles")
+    return _validated_mesh(p, v, f)
+
+
+def read_points(path) -> PointCloud:
+    """Read a point cloud, with normals where the file has them.
+
+    - `.ply`: vertex properties x, y, z and, if present, nx, ny, nz (faces are ignored).
+    - `.xyz` / `.txt`: whitespace-separated, 3 columns (x y z) or 6 (x y z nx ny nz); `#` starts
+      a comment.
+    - `.npz`: `points` (n, 2 or 3) and optional `normals` of the same shape.
+
+    **Arguments:**
+    - `path`: the file.
+
+    **Returns:** a `PointCloud` (`normals` is `None` when the file has none).
+
+    **Raises:** `InputError` for a missing, empty, corrupt or unknown file, wrong columns or
+    arrays, or NaN or infinite values.
+    """
+    p, ext = _check_file(path, _POINT_INPUTS)
+    normals = None
+    if ext == ".ply":
+        points, _, props = _load_geometry(p, ext)
+        if all(k in props for k in ("nx", "ny", "nz")):
+            normals = np.stack([props["nx"], props["ny"], props["nz"]], axis=1)
+    elif ext == ".npz":
+        z = _npz(p)
+        if "points" not in z:
+            hint = " (it looks like a mesh: use read_mesh or read_input)" if "faces" in z else ""
+            raise InputError(
+                f"'{p}' has arrays {sorted(z)}; a point-cloud .npz needs `points` (n, d) and "
+                f"optionally `normals` (n, d){hint}"
+            )
+        points, normals = z["points"], z.get("normals")
+        if points.ndim != 2 or points.shape[1] not in (2, 3):
+            raise InputError(f"'{p}': `points` must have shape (n, 2) or (n, 3), got {points.shape}")
+        if normals is not None and normals.shape != points.shape:
+            raise InputError(
+                f"'{p}': `normals` must have the shape of `points` {points.shape}, got "
+                f"{normals.shape}"
+            )
+    else:
+        data = _loadtxt(p, "a point list (x y z [nx ny nz] per line)")
+        if data.size == 0:
+            raise _empty(p)
+        if data.shape[1] not in (3, 6):
+            raise InputError(
+                f"'{p}' has {data.shape[1]} columns; expected 3 (x y z) or 6 (x y z nx ny nz)"
+            )
+        points = data[:, :3]
+        normals = data[:, 3:] if data.shape[1] == 6 else None
+    try:
+        points = np.asarray(points, dtype=np.float64)
+        normals = None if normals is None else np.asarray(normals, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"'{p}' does not hold numeric coordinates: {_short(e)}") from e
+    if len(points) == 0:
+        raise _empty(p)
+    _check_finite(p, points)
+    if normals is not None:
+        bad = _count_nonfinite(normals)
+        if bad:
+            raise InputError(
+                f"'{p}' has {bad} normal{'s' if bad != 1 else ''} with NaN or infinite "
+                "components; remove or repair them"
+            )
+    return PointCloud(
+        np.ascontiguousarray(points),
+        None if normals is None else np.ascontiguousarray(normals),
+    )
+
+
+def read_polyline(path, closed: bool | None = None) -> Polyline:
+    """Read a 2-D polyline.
+
+    - `.csv`: two comma-separated columns x, y, with an optional header line (e.g. `x,y`). A file
+      written by `write_polylines` (`contour,x,y`) is read if it holds a single contour.
+    - `.npy`: an (n, 2) array.
+
+    **Arguments:**
+    - `path`: the file.
+    - `closed`: whether the curve is closed; `None` (default): closed when the first vertex
+      equals the last. The repeated last vertex of a closed curve is dropped.
+
+    **Returns:** a `Polyline`.
+
+    **Raises:** `InputError` for a missing, empty, corrupt or unknown file, other than two
+    columns, fewer than 2 vertices (3 when closed), or NaN or infinite values.
+    """
+    p, ext = _check_file(path, _POLYLINE_INPUTS)
+    if ext == ".npy":
+        try:
+            v = np.load(p, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            raise InputError(f"'{p}' could not be read as a .npy array: {_short(e)}") from e
+        if v.ndim != 2 or v.shape[1] != 2:
+            raise InputError(f"'{p}' holds an array of shape {v.shape}; expected (n, 2) (x, y)")
+        if not np.issubdtype(v.dtype, np.number):
+            raise InputError(f"'{p}' holds {v.dtype} values; expected numbers")
+    else:
+        with open(p, encoding="utf-8", errors="replace") as fh:
+            first = fh.readline()
+        header = [w.strip().lower() for w in first.split(",")]
+        skip = 0 if _numeric(header) else 1
+        v = _loadtxt(p, "a CSV polyline (x,y per line)", delimiter=",", skiprows=skip)
+        if v.size and v.shape[1] == 3 and header == ["contour", "x", "y"]:
+            ids = np.unique(v[:, 0])
+            if len(ids) != 1:
+                raise InputError(
+                    f"'{p}' holds {len(ids)} contours (column `contour`); read_polyline reads one "
+                    "curve: split the file by contour"
+                )
+            v = v[:, 1:]
+        if v.size == 0:
+            raise _empty(p)
+        if v.shape[1] != 2:
+            raise InputError(
+                f"'{p}' has {v.shape[1]} columns; a polyline needs exactly 2 (x, y)"
+            )
+    v = np.asarray(v, dtype=np.float64)
+    if len(v) == 0:
+        raise _empty(p)
+    _check_finite(p, v)
+    repeated = len(v) > 1 and np.array_equal(v[0], v[-1])
+    is_closed = repeated if closed is None else bool(closed)
+    if is_closed and repeated:
+        v = v[:-1]
+    need = 3 if is_closed else 2
+    if len(v) < need:
+        raise InputError(
+            f"'{p}' has {len(v)} distinct vertices; a{' closed' if is_closed else 'n open'} "
+            f"polyline needs at least {need}"
+        )
+    return Polyline(np.ascontiguousarray(v), is_closed)
+
+
+def _numeric(words: list[str]) -> bool:
+    try:
+        [float(w) for w in words if w]
+    except ValueError:
+        return False
+    return True
+
+
+def read_input(path) -> Mesh | PointCloud | Polyline:
+    """Read any supported input, deciding its kind by extension and content.
+
+    `.obj` `.stl` `.off`: mesh; `.ply`: mesh if it has faces, else point cloud; `.xyz` `.txt`:
+    point cloud; `.npz`: mesh with `vertices` and `faces`, point cloud with `points`;
+    `.csv` `.npy`: polyline (closed if its first vertex equals its last).
+
+    **Arguments:**
+    - `path`: the file.
+
+    **Returns:** a `Mesh`, `PointCloud` or `Polyline`.
+    """
+    p, ext = _check_file(path, tuple(SUPPORTED))
+    if ext in (".obj", ".stl", ".off"):
+        return read_mesh(p)
+    if ext == ".ply":
+        return read_mesh(p) if _ply_header(p).get("face", 0) > 0 else read_points(p)
+    if ext in (".xyz", ".txt"):
+        return read_points(p)
+    if ext == ".npz":
+        z = _npz(p)
+        if "vertices" in z and "faces" in z:
+            return _npz_mesh(p, z)
+        if "points" in z:
+            return read_points(p)
+        if any(k.startswith("contour_") for k in z):
+            raise InputError(
+                f"'{p}' holds contours written by write_polylines; save one contour as .csv or "
+                ".npy (n, 2) to read it as a polyline"
+            )
+        raise InputError(
+            f"'{p}' has arrays {sorted(z)}; expected `points` (+ optional `normals`) for a point "
+            "cloud, or `vertices` and `faces` for a mesh"
+        )
+    return read_polyline(p)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+@contextmanager
+def atomic_output(path) -> Iterator[str]:
+    """Write a file atomically.
+
+    Yields a temporary path in the same folder, with the same suffix (so format detection by
+    extension works). When the block succeeds, the temporary file replaces `path`; when it
+    raises, the temporary file is deleted and an existing file at `path` is left as it was.
+
+    **Arguments:**
+    - `path`: the final output path; its folder must exist.
+
+    **Returns:** (yields) the temporary path to write to.
+    """
+    p = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(p))
+    if not os.path.isdir(folder):
+        raise InputError(f"cannot write '{p}': the folder '{folder}' does not exist; create it first")
+    base = os.path.basename(p)
+    suffix = Path(base).suffix
+    stem = base[: len(base) - len(suffix)] if suffix else base
+    tmp = os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.tmp{suffix}")
+    try:
+        os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+    except OSError as e:
+        raise InputError(f"cannot write '{p}': {_short(e)}") from e
+    try:
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, p)
+    except BaseException:
+        with suppress(OSError):
+            os.remove(tmp)
+        raise
+
+
+def _out_ext(path, allowed, what: str) -> str:
+    p = os.fspath(path)
+    ext = _ext(p)
+    if ext not in allowed:
+        got = f"'{ext}'" if ext else "no extension"
+        raise InputError(
+            f"cannot write {what} to '{p}' ({got}); supported output formats: {', '.join(allowed)}"
+        )
+    return ext
+
+
+def write_mesh(path, mesh_or_vertices, faces=None) -> None:
+    """Write a triangle mesh atomically.
+
+    `.ply` (binary, float64 vertices), `.obj` and `.off` (text, 17 significant digits) round-trip
+    exactly; `.stl` stores float32 triangle corners; `.npz` holds `vertices` and `faces`.
+
+    **Arguments:**
+    - `path`: output file; the extension picks the format.
+    - `mesh_or_vertices`: a `Mesh` (or anything with `vertices` and `faces`), a
+      `(vertices, faces)` pair, or (n, 3) vertices together with `faces`.
+    - `faces`: (m, 3) integer vertex indices when `mesh_or_vertices` is an array.
+
+    **Returns:** `None`.
+    """
+    ext = _out_ext(path, MESH_OUTPUTS, "a mesh")
+    v, f = _mesh_arrays(mesh_or_vertices, faces)
+    with atomic_output(path) as tmp:
+        if ext == ".ply":
+            _write_ply(tmp, v, None, f)
+        elif ext in (".obj", ".off"):
+            _write_text_mesh(tmp, v, f, ext)
+        elif ext == ".npz":
+            with open(tmp, "wb") as fh:
+                np.savez(fh, vertices=v, faces=f)
+        else:
+            import trimesh
+
+            trimesh.Trimesh(v, f, process=False).export(tmp, file_type=ext[1:])
+
+
+def _write_text_mesh(tmp: str, v: np.ndarray, f: np.ndarray, ext: str) -> None:
+    with open(tmp, "w", encoding="ascii", newline="\n") as fh:
+        if ext == ".obj":
+            fh.write("# written by jaxrbf\n")
+            np.savetxt(fh, v, fmt="v %.17g %.17g %.17g")
+            np.savetxt(fh, f + 1, fmt="f %d %d %d")
+        else:
+            fh.write(f"OFF\n{len(v)} {len(f)} 0\n")
+            np.savetxt(fh, v, fmt="%.17g %.17g %.17g")
+            np.savetxt(fh, f, fmt="3 %d %d %d")
+
+
+def _write_ply(tmp: str, v: np.ndarray, normals: np.ndarray | None, f: np.ndarray | None) -> None:
+    """Binary little-endian PLY with float64 vertex properties (trimesh's exporter uses float32)."""
+    names = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
+    header = ["ply", "format binary_little_endian 1.0", "comment written by jaxrbf"]
+    header.append(f"element vertex {len(v)}")
+    header += [f"property double {n}" for n in names]
+    if f is not None:
+        header += [f"element face {len(f)}", "property list uchar int vertex_indices"]
+    header.append("end_header")
+    vert = np.empty(len(v), dtype=[(n, "<f8") for n in names])
+    for i, n in enumerate(names[:3]):
+        vert[n] = v[:, i]
+    if normals is not None:
+        for i, n in enumerate(names[3:]):
+            vert[n] = normals[:, i]
+    with open(tmp, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(vert.tobytes())
+        if f is not None:
+            face = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+            face["n"] = 3
+            face["i"] = f
+            fh.write(face.tobytes())
+
+
+def write_points(path, points, normals=None) -> None:
+    """Write points (and normals) atomically.
+
+    **Arguments:**
+    - `path`: `.ply` (binary, float64; 3-D only), `.xyz` (text x y z [nx ny nz]; 3-D only) or
+      `.npz` (`points`, optional `normals`; 2-D or 3-D).
+    - `points`: (n, d) coordinates.
+    - `normals`: (n, d) normals or `None`.
+
+    **Returns:** `None`.
+    """
+    ext = _out_ext(path, POINT_OUTPUTS, "points")
+    dims = (2, 3) if ext == ".npz" else (3,)
+    p = as_points(points, "points", dims=dims)
+    n = None
+    if normals is not None:
+        n = as_points(normals, "normals", dims=dims)
+        if n.shape != p.shape:
+            raise InputError(
+                f"`normals` must have the shape of `points` {p.shape}, got {n.shape}"
+            )
+    with atomic_output(path) as tmp:
+        if ext == ".ply":
+            _write_ply(tmp, p, n, None)
+        elif ext == ".xyz":
+            data = p if n is None else np.hstack([p, n])
+            np.savetxt(tmp, data, fmt="%.17g")
+        else:
+            arrays = {"points": p} if n is None else {"points": p, "normals": n}
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+
+
+def write_polylines(path, polylines: list[np.ndarray]) -> None:
+    """Write 2-D curves atomically.
+
+    **Arguments:**
+    - `path`: `.csv` (header `contour,x,y`, one row per vertex, `contour` numbering the curves
+      from 0) or `.npz` (arrays `contour_0`, `contour_1`, ... of shape (k, 2)).
+    - `polylines`: a list of (k, 2) arrays (a single (k, 2) array is one curve). Curves are
+      written as given: a closed curve keeps its repeated last vertex if it has one.
+
+    **Returns:** `None`.
+    """
+    ext = _out_ext(path, POLYLINE_OUTPUTS, "polylines")
+    if isinstance(polylines, np.ndarray) and polylines.ndim == 2:
+        polylines = [polylines]
+    curves = [as_points(c, f"polylines[{i}]", dims=(2,)) for i, c in enumerate(polylines)]
+    with atomic_output(path) as tmp:
+        if ext == ".csv":
+            with open(tmp, "w", encoding="ascii", newline="\n") as fh:
+                fh.write("contour,x,y\n")
+                for i, c in enumerate(curves):
+                    ids = np.full((len(c), 1), i, dtype=np.float64)
+                    np.savetxt(fh, np.hstack([ids, c]), fmt=["%d", "%.17g", "%.17g"], delimiter=",")
+        else:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **{f"contour_{i}": c for i, c in enumerate(curves)})

@@ -1,0 +1,134 @@
+import numpy as np
+import pytest
+from helpers import ellipse, sphere
+
+from jaxrbf import Constraints, InputError
+from jaxrbf._prepare import polyline_normals, sample_faces, vertex_normals
+
+
+def test_layout_and_values():
+    p, n = sphere(100)
+    c = Constraints.from_points(p, n, offset=0.1)
+    pts, vals = np.asarray(c.points), np.asarray(c.values)
+    assert c.n_surface == 100 and pts.shape == (300, 3)
+    np.testing.assert_array_equal(vals[:100], 0)
+    np.testing.assert_allclose(vals[100:200], 0.1)
+    np.testing.assert_allclose(vals[200:], -0.1)
+    np.testing.assert_allclose(np.linalg.norm(pts[100:200], axis=1), 1.1)  # outside, positive
+    np.testing.assert_allclose(np.linalg.norm(pts[200:], axis=1), 0.9)  # inside, negative
+
+
+def test_default_offset_is_fraction_of_diagonal():
+    p, n = sphere(100)
+    c = Constraints.from_points(p, n)
+    diag = np.linalg.norm(p.max(0) - p.min(0))
+    np.testing.assert_allclose(np.asarray(c.values)[100:200], 0.01 * diag)
+
+
+def test_normals_are_normalised():
+    p, n = sphere(50)
+    c = Constraints.from_points(p, 5 * n, offset=0.1)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(c.points)[50:100], axis=1), 1.1)
+
+
+def test_offsets_shrink_in_thin_parts():
+    # two parallel sheets 0.1 apart: an inside offset of 0.2 would cross to the other sheet
+    g = np.stack(np.meshgrid(np.linspace(0, 1, 8), np.linspace(0, 1, 8)), -1).reshape(-1, 2)
+    top = np.column_stack([g, np.full(len(g), 0.1)])
+    bottom = np.column_stack([g, np.zeros(len(g))])
+    p = np.vstack([top, bottom])
+    n = np.vstack([np.tile([0, 0, 1.0], (len(g), 1)), np.tile([0, 0, -1.0], (len(g), 1))])
+    c = Constraints.from_points(p, n, offset=0.2)
+    assert c.n_shrunk > 0
+    pts, vals = np.asarray(c.points), np.asarray(c.values)
+    inside = vals < 0
+    # every inside point stays nearer its own sheet: |offset| < half the gap
+    assert np.all(np.abs(vals[inside]) < 0.05 + 1e-12)
+    unvalidated = Constraints.from_points(p, n, offset=0.2, validate=False)
+    assert unvalidated.n_shrunk == 0 and np.all(np.abs(np.asarray(unvalidated.values)[128:]) == 0.2)
+    assert pts.shape[0] == 3 * len(p) - c.n_dropped
+
+
+def test_duplicates_are_merged():
+    p, n = sphere(50)
+    c = Constraints.from_points(np.vstack([p, p[:3]]), np.vstack([n, n[:3]]), offset=0.1)
+    assert c.n_surface == 50 and c.n_merged == 3
+    assert "3 duplicate points merged" in c.report()
+
+
+def test_from_mesh_faces_and_vertices():
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=3)
+    c = Constraints.from_mesh(m.vertices, m.faces, points=500, offset=0.05)
+    assert c.n_surface == 500
+    on = np.asarray(c.points)[:500]
+    assert np.abs(np.linalg.norm(on, axis=1) - 1).max() < 0.02  # on the (faceted) sphere
+    cv = Constraints.from_mesh(m.vertices, m.faces, sampling="vertices", offset=0.05)
+    assert cv.n_surface == len(m.vertices)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(cv.points)[cv.n_surface : 2 * cv.n_surface], axis=1), 1.05, atol=1e-4)
+
+
+def test_vertex_normals_are_area_weighted_and_outward():
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=2)
+    vn = vertex_normals(m.vertices, m.faces)
+    vn /= np.linalg.norm(vn, axis=1, keepdims=True)
+    assert np.min(np.sum(vn * m.vertices, axis=1)) > 0.99
+
+
+def test_sample_faces_is_uniform_and_seeded():
+    import trimesh
+
+    m = trimesh.creation.box()
+    p1, n1 = sample_faces(m.vertices, m.faces, 6000, seed=1)
+    p2, _ = sample_faces(m.vertices, m.faces, 6000, seed=1)
+    np.testing.assert_array_equal(p1, p2)
+    counts = [np.sum(np.isclose(n1 @ axis, 1)) for axis in np.eye(3)]
+    assert all(abs(c - 1000) < 150 for c in counts)  # each face of the cube gets its share
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_polyline_normals_point_out_of_closed_curves(reverse):
+    v = ellipse(40)
+    if reverse:
+        v = v[::-1]
+    n = polyline_normals(v, closed=True)
+    assert np.all(np.sum(n * v, axis=1) > 0)
+
+
+def test_from_polyline_detects_closed():
+    c = Constraints.from_polyline(ellipse(30, closed_repeat=True), offset=0.05)
+    assert c.n_surface == 30
+    c_open = Constraints.from_polyline(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]), offset=0.1)
+    # walking along +x, the right-hand side (outside, positive) is -y
+    vals = np.asarray(c_open.values)
+    pts = np.asarray(c_open.points)
+    assert np.all(pts[vals > 0, 1] < 0) and np.all(pts[vals < 0, 1] > 0)
+
+
+def test_errors():
+    p, n = sphere(20)
+    with pytest.raises(InputError, match="2 zero-length vectors"):
+        bad = n.copy()
+        bad[[3, 7]] = 0
+        Constraints.from_points(p, bad)
+    with pytest.raises(InputError, match="`normals` has 19 rows but `points` has 20"):
+        Constraints.from_points(p, n[:-1])
+    with pytest.raises(InputError, match="`offset` must be a positive distance"):
+        Constraints.from_points(p, n, offset=-1)
+    with pytest.raises(InputError, match="`points` is empty"):
+        Constraints.from_points(np.zeros((0, 3)), np.zeros((0, 3)))
+    with pytest.raises(InputError, match="NaN or infinite"):
+        q = p.copy()
+        q[0, 0] = np.nan
+        Constraints.from_points(q, n)
+    with pytest.raises(InputError, match="`faces` must be a non-empty"):
+        Constraints.from_mesh(p, np.zeros((0, 3), int))
+    with pytest.raises(InputError, match="refers to vertex 99"):
+        Constraints.from_mesh(p, np.array([[0, 1, 99]]))
+    with pytest.raises(InputError, match="zero-length segment"):
+        Constraints.from_polyline(np.array([[0.0, 0], [1, 0], [1, 0], [0, 1]]), closed=True)
+    with pytest.raises(InputError, match="needs at least 3 distinct vertices"):
+        Constraints.from_polyline(np.array([[0.0, 0], [1, 0]]), closed=True)

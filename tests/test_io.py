@@ -1,0 +1,450 @@
+"""File formats: round trips, error messages and atomic writes."""
+
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxrbf import io
+from jaxrbf._errors import InputError
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+# A unit cube: 8 vertices, 12 outward triangles (independent of trimesh).
+CUBE_V = np.array(
+    [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+    dtype=float,
+) * np.array([1.25, 0.5, 2.0]) + np.array([0.1, -3.0, 1e-3])
+CUBE_F = np.array(
+    [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+     [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]],
+    dtype=np.int64,
+)
+
+
+def _cloud(n=50, seed=1):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3)) * [3.0, 1.0, 1e-2] + 100.0
+    nrm = rng.normal(size=(n, 3))
+    return p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+
+def _triangles(v, f):
+    """Triangles as a sorted list of corner tuples: compares meshes regardless of vertex order."""
+    return sorted(tuple(map(tuple, np.round(v[t], 5))) for t in f)
+
+
+# --------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("ext", [".ply", ".obj", ".off", ".npz"])
+def test_mesh_round_trip_exact(tmp_path, ext):
+    path = tmp_path / f"cube{ext}"
+    io.write_mesh(path, io.Mesh(CUBE_V, CUBE_F))
+    m = io.read_mesh(path)
+    assert m.vertices.dtype == np.float64 and m.faces.dtype == np.int64
+    np.testing.assert_array_equal(m.faces, CUBE_F)
+    np.testing.assert_allclose(m.vertices, CUBE_V, rtol=0, atol=1e-14)
+
+
+def test_mesh_round_trip_stl_joins_corners(tmp_path):
+    path = tmp_path / "cube.stl"
+    io.write_mesh(path, CUBE_V, CUBE_F)
+    m = io.read_mesh(path)
+    # STL keeps no shared vertices; reading joins identical corners back into 8 vertices.
+    assert m.vertices.shape == (8, 3) and m.faces.shape == (12, 3)
+    assert _triangles(m.vertices, m.faces) == _triangles(CUBE_V, CUBE_F)
+    assert np.abs(np.sort(m.vertices, axis=0) - np.sort(CUBE_V, axis=0)).max() < 1e-6
+
+
+def test_write_mesh_accepts_pairs_and_trimesh(tmp_path):
+    import trimesh
+
+    io.write_mesh(tmp_path / "a.obj", (CUBE_V, CUBE_F))
+    io.write_mesh(tmp_path / "b.obj", trimesh.Trimesh(CUBE_V, CUBE_F, process=False))
+    for name in ("a.obj", "b.obj"):
+        np.testing.assert_array_equal(io.read_mesh(tmp_path / name).faces, CUBE_F)
+
+
+def test_ply_mesh_is_readable_by_trimesh(tmp_path):
+    import trimesh
+
+    io.write_mesh(tmp_path / "cube.ply", CUBE_V, CUBE_F)
+    tm = trimesh.load(str(tmp_path / "cube.ply"), process=False)
+    assert tm.is_watertight and tm.volume == pytest.approx(1.25 * 0.5 * 2.0)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".xyz", ".npz"])
+def test_points_with_normals_round_trip(tmp_path, ext):
+    p, n = _cloud()
+    path = tmp_path / f"cloud{ext}"
+    io.write_points(path, p, n)
+    pc = io.read_points(path)
+    np.testing.assert_array_equal(pc.points, p)
+    np.testing.assert_array_equal(pc.normals, n)
+    got = io.read_input(path)
+    assert isinstance(got, io.PointCloud)
+    np.testing.assert_array_equal(got.normals, n)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".xyz", ".npz"])
+def test_points_without_normals(tmp_path, ext):
+    p, _ = _cloud()
+    io.write_points(tmp_path / f"c{ext}", p)
+    pc = io.read_points(tmp_path / f"c{ext}")
+    assert pc.normals is None
+    np.testing.assert_array_equal(pc.points, p)
+
+
+def test_ply_normals_written_by_hand_ascii(tmp_path):
+    """An ASCII PLY from another tool with float normals: trimesh keeps them only in metadata."""
+    path = tmp_path / "hand.ply"
+    path.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+        "property uchar red\nend_header\n0 1 2 0 0 1 255\n3 4 5 1 0 0 0\n"
+    )
+    pc = io.read_points(path)
+    np.testing.assert_array_equal(pc.points, [[0, 1, 2], [3, 4, 5]])
+    np.testing.assert_array_equal(pc.normals, [[0, 0, 1], [1, 0, 0]])
+
+
+def test_txt_points_with_comment(tmp_path):
+    path = tmp_path / "p.txt"
+    path.write_text("# x y z\n0 0 0\n1 2 3\n")
+    pc = io.read_points(path)
+    np.testing.assert_array_equal(pc.points, [[0, 0, 0], [1, 2, 3]])
+    assert pc.normals is None
+
+
+def test_2d_points_npz(tmp_path):
+    p = np.array([[0.0, 1.0], [2.0, 3.0], [4.0, 5.0]])
+    io.write_points(tmp_path / "p.npz", p, -p)
+    pc = io.read_points(tmp_path / "p.npz")
+    np.testing.assert_array_equal(pc.normals, -p)
+
+
+def test_read_input_dispatch(tmp_path):
+    io.write_mesh(tmp_path / "m.ply", CUBE_V, CUBE_F)
+    io.write_mesh(tmp_path / "m.npz", CUBE_V, CUBE_F)
+    io.write_points(tmp_path / "p.ply", *_cloud())
+    np.save(tmp_path / "l.npy", np.eye(3)[:, :2])
+    assert isinstance(io.read_input(tmp_path / "m.ply"), io.Mesh)
+    assert isinstance(io.read_input(tmp_path / "m.npz"), io.Mesh)
+    assert isinstance(io.read_input(tmp_path / "p.ply"), io.PointCloud)
+    assert isinstance(io.read_input(tmp_path / "l.npy"), io.Polyline)
+
+
+def test_polyline_csv_closed_by_repeat(tmp_path):
+    path = tmp_path / "sq.csv"
+    path.write_text("x,y\n0,0\n1,0\n1,1\n0,1\n0,0\n")
+    pl = io.read_polyline(path)
+    assert pl.closed
+    np.testing.assert_array_equal(pl.vertices, [[0, 0], [1, 0], [1, 1], [0, 1]])
+
+
+def test_polyline_csv_open_no_header(tmp_path):
+    path = tmp_path / "open.csv"
+    path.write_text("0,0\n1,0.5\n2,-1e-3\n")
+    pl = io.read_polyline(path)
+    assert not pl.closed
+    np.testing.assert_array_equal(pl.vertices, [[0, 0], [1, 0.5], [2, -1e-3]])
+    assert io.read_polyline(path, closed=True).closed
+
+
+def test_polyline_npy_open_and_closed(tmp_path):
+    t = np.linspace(0, 2 * np.pi, 9)[:-1]
+    ring = np.stack([np.cos(t), np.sin(t)], 1)
+    np.save(tmp_path / "closed.npy", np.vstack([ring, ring[:1]]))
+    np.save(tmp_path / "open.npy", ring)
+    closed = io.read_polyline(tmp_path / "closed.npy")
+    assert closed.closed and closed.vertices.shape == (8, 2)
+    np.testing.assert_array_equal(closed.vertices, ring)
+    opened = io.read_polyline(tmp_path / "open.npy")
+    assert not opened.closed and opened.vertices.shape == (8, 2)
+
+
+def test_write_polylines_csv_and_npz(tmp_path):
+    a = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 1.0 / 3.0]])
+    b = np.array([[5.0, 5.0], [6.0, 5.0]])
+    io.write_polylines(tmp_path / "c.csv", [a, b])
+    lines = (tmp_path / "c.csv").read_text().splitlines()
+    assert lines[0] == "contour,x,y" and len(lines) == 1 + 5
+    table = np.loadtxt(tmp_path / "c.csv", delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(table[:, 0], [0, 0, 0, 1, 1])
+    np.testing.assert_array_equal(table[:, 1:], np.vstack([a, b]))
+    io.write_polylines(tmp_path / "c.npz", [a, b])
+    with np.load(tmp_path / "c.npz") as z:
+        assert sorted(z.files) == ["contour_0", "contour_1"]
+        np.testing.assert_array_equal(z["contour_1"], b)
+    # A single-contour file reads back as a polyline.
+    io.write_polylines(tmp_path / "one.csv", [a])
+    np.testing.assert_array_equal(io.read_polyline(tmp_path / "one.csv").vertices, a)
+    with pytest.raises(InputError, match="holds 2 contours"):
+        io.read_polyline(tmp_path / "c.csv")
+
+
+@pytest.mark.skipif(not DATA.exists(), reason="the shared test meshes (../shared/data) are absent")
+def test_read_spot():
+    m = io.read_mesh(DATA / "spot.obj")
+    n_v = sum(1 for line in open(DATA / "spot.obj") if line.startswith("v "))
+    n_f = sum(1 for line in open(DATA / "spot.obj") if line.startswith("f "))
+    assert m.vertices.shape == (n_v, 3) and m.faces.shape == (n_f, 3)
+    assert m.faces.min() == 0 and m.faces.max() == n_v - 1
+    assert isinstance(io.read_input(DATA / "spot.obj"), io.Mesh)
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match=r"input file '.*x\.ply' does not exist"):
+        io.read_input(tmp_path / "x.ply")
+    with pytest.raises(InputError, match="does not exist"):
+        io.read_mesh(tmp_path / "x.obj")
+
+
+@pytest.mark.parametrize("name", ["x.obj", "x.ply", "x.xyz", "x.npz", "x.csv", "x.stl"])
+def test_empty_file(tmp_path, name):
+    (tmp_path / name).write_bytes(b"")
+    with pytest.raises(InputError, match=r"'.*x\.\w+' is empty: it holds no vertices"):
+        io.read_input(tmp_path / name)
+
+
+def test_no_vertices_obj(tmp_path):
+    (tmp_path / "x.obj").write_text("# only a comment\n")
+    with pytest.raises(InputError, match="is empty: it holds no vertices"):
+        io.read_mesh(tmp_path / "x.obj")
+
+
+def test_unknown_extension(tmp_path):
+    (tmp_path / "x.foo").write_text("1 2 3\n")
+    with pytest.raises(InputError, match=r"'.*x\.foo' has an unknown format '\.foo'; expected one "
+                       r"of \.obj, \.ply"):
+        io.read_input(tmp_path / "x.foo")
+
+
+def test_mesh_without_faces(tmp_path):
+    (tmp_path / "x.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    with pytest.raises(InputError, match=r"'.*x\.obj' has vertices but no faces"):
+        io.read_mesh(tmp_path / "x.obj")
+    io.write_points(tmp_path / "p.ply", *_cloud())
+    with pytest.raises(InputError, match="has vertices but no faces"):
+        io.read_mesh(tmp_path / "p.ply")
+
+
+def test_nan_coordinates(tmp_path):
+    (tmp_path / "x.xyz").write_text("0 0 0\nnan 1 1\n1 inf 1\n2 2 -inf\n3 3 3\n")
+    with pytest.raises(InputError, match=r"'.*x\.xyz' has 3 vertices with NaN or infinite"):
+        io.read_points(tmp_path / "x.xyz")
+    (tmp_path / "x.obj").write_text("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(InputError, match="has 1 vertex with NaN or infinite"):
+        io.read_mesh(tmp_path / "x.obj")
+    np.save(tmp_path / "x.npy", np.array([[0, 0], [1, np.nan], [2, 2]]))
+    with pytest.raises(InputError, match="has 1 vertex with NaN"):
+        io.read_polyline(tmp_path / "x.npy")
+
+
+def test_truncated_npz(tmp_path):
+    path = tmp_path / "x.npz"
+    p, n = _cloud(2000)
+    np.savez(path, points=p, normals=n)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match=r"'.*x\.npz' could not be read as an \.npz archive"):
+        io.read_points(path)
+    with pytest.raises(InputError, match="could not be read"):
+        io.read_input(path)
+
+
+def test_corrupt_npz_member(tmp_path):
+    """A zip whose member is not a valid .npy."""
+    path = tmp_path / "x.npz"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("points.npy", b"not an npy file")
+    with pytest.raises(InputError, match="could not be read as an .npz archive"):
+        io.read_points(path)
+
+
+def test_truncated_ply(tmp_path):
+    path = tmp_path / "x.ply"
+    io.write_points(path, *_cloud(100))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) - 500])
+    with pytest.raises(InputError, match=r"'.*x\.ply' could not be read as PLY"):
+        io.read_points(path)
+    ascii_ply = tmp_path / "a.ply"
+    ascii_ply.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+        "property double z\nend_header\n0.1 0.2 0.3\n"
+    )
+    with pytest.raises(InputError, match="declares 3 vertices but 1 were read"):
+        io.read_points(ascii_ply)
+
+
+def test_wrong_columns(tmp_path):
+    (tmp_path / "x.xyz").write_text("0 0 0 1\n1 1 1 1\n")
+    with pytest.raises(InputError, match=r"has 4 columns; expected 3 \(x y z\) or 6"):
+        io.read_points(tmp_path / "x.xyz")
+    (tmp_path / "x.csv").write_text("x,y,z\n0,0,0\n1,1,1\n")
+    with pytest.raises(InputError, match="has 3 columns; a polyline needs exactly 2"):
+        io.read_polyline(tmp_path / "x.csv")
+    np.save(tmp_path / "x.npy", np.zeros((4, 3)))
+    with pytest.raises(InputError, match=r"shape \(4, 3\); expected \(n, 2\)"):
+        io.read_polyline(tmp_path / "x.npy")
+    (tmp_path / "ragged.xyz").write_text("0 0 0\n1 1\n")
+    with pytest.raises(InputError, match="could not be read as a point list"):
+        io.read_points(tmp_path / "ragged.xyz")
+
+
+def test_wrong_npz_keys(tmp_path):
+    np.savez(tmp_path / "x.npz", pts=np.zeros((3, 3)))
+    with pytest.raises(InputError, match=r"has arrays \['pts'\]; a point-cloud .npz needs `points`"):
+        io.read_points(tmp_path / "x.npz")
+    with pytest.raises(InputError, match=r"has arrays \['pts'\]; expected `points`"):
+        io.read_input(tmp_path / "x.npz")
+    np.savez(tmp_path / "y.npz", points=np.zeros((3, 3)), normals=np.zeros((2, 3)))
+    with pytest.raises(InputError, match="`normals` must have the shape of `points`"):
+        io.read_points(tmp_path / "y.npz")
+
+
+def test_bad_face_index(tmp_path):
+    (tmp_path / "x.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(InputError):
+        io.read_mesh(tmp_path / "x.off")
+
+
+def test_corrupt_off(tmp_path):
+    (tmp_path / "x.off").write_text("OFF\n3 1 0\n0 0 0\n")
+    with pytest.raises(InputError, match=r"'.*x\.off' could not be read as OFF"):
+        io.read_mesh(tmp_path / "x.off")
+
+
+def test_wrong_kind_for_reader(tmp_path):
+    io.write_points(tmp_path / "p.xyz", *_cloud())
+    with pytest.raises(InputError, match=r"holds a point cloud \(\.xyz\)"):
+        io.read_mesh(tmp_path / "p.xyz")
+
+
+def test_short_polyline(tmp_path):
+    (tmp_path / "x.csv").write_text("0,0\n1,1\n0,0\n")
+    with pytest.raises(InputError, match="closed polyline needs at least 3"):
+        io.read_polyline(tmp_path / "x.csv")
+
+
+# --------------------------------------------------------------------------- as_points
+
+
+def test_as_points_valid():
+    a = io.as_points([[1, 2, 3], [4, 5, 6]])
+    assert a.dtype == np.float64 and a.shape == (2, 3)
+
+
+@pytest.mark.parametrize(
+    "array, dims, pattern",
+    [
+        (np.zeros(3), (2, 3), r"`points` must be a 2-dimensional array of shape \(n, d\), got "
+                              r"shape \(3,\)"),
+        (np.zeros((4, 4)), (2, 3), r"must have 2 or 3 columns"),
+        (np.zeros((4, 2)), (3,), r"must have 3 columns"),
+        (np.zeros((0, 3)), (2, 3), "is empty"),
+        (np.array([[0, 0], [np.nan, 1], [np.inf, 0]]), (2,), "has 2 rows with NaN or infinite"),
+        ([["a", "b"]], (2,), "must be an array of numbers"),
+    ],
+)
+def test_as_points_errors(array, dims, pattern):
+    with pytest.raises(InputError, match=pattern):
+        io.as_points(array, dims=dims)
+
+
+def test_as_points_names_the_argument():
+    with pytest.raises(InputError, match="`centres` must be a 2-dimensional"):
+        io.as_points(np.zeros((2, 2, 2)), "centres")
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+def _listing(folder):
+    return sorted(os.listdir(folder))
+
+
+@pytest.mark.parametrize(
+    "writer, args",
+    [
+        (io.write_mesh, (CUBE_V, CUBE_F)),
+        (io.write_points, (CUBE_V,)),
+        (io.write_polylines, ([CUBE_V[:, :2]],)),
+    ],
+)
+def test_unknown_output_extension_writes_nothing(tmp_path, writer, args):
+    with pytest.raises(InputError, match="supported output formats"):
+        writer(tmp_path / "out.foo", *args)
+    assert _listing(tmp_path) == []
+
+
+def test_bad_array_writes_nothing(tmp_path):
+    with pytest.raises(InputError, match="refers to vertex indices from 0 to 8"):
+        io.write_mesh(tmp_path / "m.obj", CUBE_V, CUBE_F + 1)
+    with pytest.raises(InputError, match="has 1 row with NaN"):
+        io.write_points(tmp_path / "p.xyz", [[0, 0, np.nan]])
+    assert _listing(tmp_path) == []
+
+
+def test_missing_output_folder(tmp_path):
+    with pytest.raises(InputError, match="does not exist; create it first"):
+        io.write_mesh(tmp_path / "nope" / "m.obj", CUBE_V, CUBE_F)
+
+
+def test_failed_write_keeps_old_file(tmp_path, monkeypatch):
+    target = tmp_path / "m.obj"
+    target.write_text("old content\n")
+
+    def broken(tmp, v, f, ext):
+        with open(tmp, "w") as fh:
+            fh.write("v 0 0 0\n")  # some bytes, then a failure
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(io, "_write_text_mesh", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        io.write_mesh(target, CUBE_V, CUBE_F)
+    assert target.read_text() == "old content\n"
+    assert _listing(tmp_path) == ["m.obj"]
+
+
+def test_failed_trimesh_export_keeps_old_file(tmp_path, monkeypatch):
+    import trimesh
+
+    target = tmp_path / "m.stl"
+    target.write_bytes(b"old")
+
+    def broken(self, file_obj=None, file_type=None, **kw):
+        with open(file_obj, "wb") as fh:
+            fh.write(b"solid partial\n")
+        raise OSError("exporter crashed")
+
+    monkeypatch.setattr(trimesh.Trimesh, "export", broken)
+    with pytest.raises(OSError, match="exporter crashed"):
+        io.write_mesh(target, CUBE_V, CUBE_F)
+    assert target.read_bytes() == b"old"
+    assert _listing(tmp_path) == ["m.stl"]
+
+
+def test_atomic_output_replaces_on_success(tmp_path):
+    target = tmp_path / "t.txt"
+    target.write_text("old")
+    with io.atomic_output(target) as tmp:
+        assert Path(tmp).parent == tmp_path and Path(tmp).suffix == ".txt"
+        assert target.read_text() == "old"  # not yet replaced
+        Path(tmp).write_text("new")
+    assert target.read_text() == "new"
+    assert _listing(tmp_path) == ["t.txt"]
+
+
+def test_atomic_output_normal_permissions(tmp_path):
+    io.write_points(tmp_path / "p.xyz", CUBE_V)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "p.xyz").stat().st_mode & 0o777 == 0o666 & ~umask

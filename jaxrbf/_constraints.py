@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._errors import InputError
-from ._prepare import diagonal, find_duplicates, polyline_normals, sample_faces, vertex_normals
+from ._prepare import diagonal, duplicate_pairs, find_duplicates, polyline_normals, sample_faces, vertex_normals
 
 #: Default offset d as a fraction of the bounding-box diagonal.
 DEFAULT_OFFSET = 0.01
@@ -119,7 +119,15 @@ class Constraints(eqx.Module):
         offset = float(offset)
         if not (np.isfinite(offset) and offset > 0):
             raise InputError(f"`offset` must be a positive distance, got {offset!r}")
-        drop = find_duplicates(p, merge_tol * diag)
+        pairs = duplicate_pairs(p, merge_tol * diag)
+        clash = pairs[np.sum(nrm[pairs[:, 0]] * nrm[pairs[:, 1]], axis=1) < 0.5]
+        if len(clash):
+            i, j = (int(k) for k in clash[0])
+            raise InputError(
+                f"points {i} and {j} are identical but their normals disagree ({len(clash)} such "
+                "pairs): one place cannot be both inside and outside; remove one of each pair"
+            )
+        drop = find_duplicates(p, merge_tol * diag, pairs)
         p, nrm = p[~drop], nrm[~drop]
         parts_p, parts_v = [p], [np.zeros(len(p))]
         shrunk = dropped = 0

@@ -33,14 +33,20 @@ def unit_box_transform(points: np.ndarray, name: str = "points") -> tuple[np.nda
     return (lo + hi) / 2.0, scale
 
 
-def find_duplicates(points: np.ndarray, tol: float) -> np.ndarray:
-    """Boolean mask of points that lie within `tol` of an earlier point (to drop)."""
+def duplicate_pairs(points: np.ndarray, tol: float) -> np.ndarray:
+    """(k, 2) index pairs i < j of points closer than `tol`."""
     from scipy.spatial import cKDTree
 
     pairs = cKDTree(points).query_pairs(r=tol, output_type="ndarray")
+    return np.sort(pairs, axis=1) if len(pairs) else pairs.reshape(0, 2)
+
+
+def find_duplicates(points: np.ndarray, tol: float, pairs: np.ndarray | None = None) -> np.ndarray:
+    """Boolean mask of points that lie within `tol` of an earlier point (to drop)."""
+    if pairs is None:
+        pairs = duplicate_pairs(points, tol)
     drop = np.zeros(len(points), dtype=bool)
-    if len(pairs):
-        drop[np.max(pairs, axis=1)] = True
+    drop[pairs[:, 1]] = True
     return drop
 
 

@@ -12,8 +12,8 @@ import os
 import sys
 import time
 
-MESH_OUT = (".ply", ".obj", ".stl", ".off")
-CURVE_OUT = (".csv", ".npz")
+from .io import MESH_OUTPUTS as MESH_OUT
+from .io import POLYLINE_OUTPUTS as CURVE_OUT
 
 
 def _fit_options(p: argparse.ArgumentParser) -> None:

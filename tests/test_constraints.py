@@ -54,6 +54,8 @@ def test_duplicates_are_merged():
     c = Constraints.from_points(np.vstack([p, p[:3]]), np.vstack([n, n[:3]]), offset=0.1)
     assert c.n_surface == 50 and c.n_merged == 3
     assert "3 duplicate points merged" in c.report()
+    with pytest.raises(InputError, match="points 0 and 50 are identical but their normals disagree"):
+        Constraints.from_points(np.vstack([p, p[:1]]), np.vstack([n, -n[:1]]))
 
 
 def test_from_mesh_faces_and_vertices():

@@ -1,0 +1,145 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import data_file
+from helpers import ellipse, sphere
+
+import jaxrbf
+from jaxrbf.cli import main
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_reconstruct_fit_mesh_evaluate_on_spot(tmp_path, capsys):
+    spot = data_file("spot.obj")
+    out = tmp_path / "spot.ply"
+    code, _, err = run(capsys, "reconstruct", spot, "-o", out, "--points", 800, "--resolution", 48)
+    assert code == 0, err
+    assert "relative residual" in err and "wrote" in err
+    code, text, _ = run(capsys, "evaluate", out, "--reference", spot, "--json", "--samples", 20000)
+    scores = json.loads(text)
+    assert scores["chamfer_l1"] < 0.01 and scores["normal_consistency"] > 0.9
+
+    model = tmp_path / "spot.npz"
+    assert run(capsys, "fit", spot, "-o", model, "--points", 300, "-q")[0] == 0
+    again = tmp_path / "again.obj"
+    code, _, err = run(capsys, "mesh", model, "-o", again, "--resolution", 32, "--project")
+    assert code == 0, err
+    mesh = jaxrbf.io.read_mesh(again)
+    assert np.abs(np.asarray(jaxrbf.load(model)(mesh.vertices))).max() < 1e-6  # projected onto f = 0
+
+
+def test_point_cloud_and_kernel_options(tmp_path, capsys):
+    p, n = sphere(300)
+    src = tmp_path / "ball.xyz"
+    np.savetxt(src, np.hstack([p, n]))
+    out = tmp_path / "ball.stl"
+    code, _, err = run(capsys, "reconstruct", src, "-o", out, "--kernel", "multiquadric", "--radius", 0.1,
+                       "--solver", "cholesky", "--resolution", 32, "-q")
+    assert code == 0, err
+    v = jaxrbf.io.read_mesh(out).vertices
+    assert np.abs(np.linalg.norm(v, axis=1) - 1).max() < 0.01
+    # a Gaussian as wide as the shape makes the system numerically singular: a clear error
+    code, _, err = run(capsys, "reconstruct", src, "-o", tmp_path / "g.ply", "--kernel", "gaussian",
+                       "--radius", 0.3, "--solver", "cholesky", "-q")
+    assert code == 2 and "singular" in err and not (tmp_path / "g.ply").exists()
+
+
+def test_polyline_to_curves(tmp_path, capsys):
+    src = tmp_path / "ellipse.csv"
+    np.savetxt(src, ellipse(40, closed_repeat=True), delimiter=",")
+    out = tmp_path / "curve.csv"
+    code, _, err = run(capsys, "reconstruct", src, "-o", out, "--resolution", 100)
+    assert code == 0, err
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert np.abs((rows[:, 1] / 2) ** 2 + rows[:, 2] ** 2 - 1).max() < 0.03
+
+
+def _bad_inputs(tmp_path):
+    """(name, file content writer, expected message) for each kind of bad input."""
+    p, n = sphere(50)
+    cases = {}
+    (tmp_path / "empty.obj").write_text("")
+    cases["empty"] = (tmp_path / "empty.obj", "empty")
+    bad = np.hstack([p, n])
+    bad[3, 0] = np.nan
+    np.savetxt(tmp_path / "nan.xyz", bad)
+    cases["nan"] = (tmp_path / "nan.xyz", "NaN")
+    (tmp_path / "scan.foo").write_text("1 2 3\n")
+    cases["unknown"] = (tmp_path / "scan.foo", "unknown format '.foo'")
+    (tmp_path / "nofaces.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n")
+    cases["no faces"] = (tmp_path / "nofaces.obj", "no faces")
+    zero = np.hstack([p, n])
+    zero[7, 3:] = 0
+    np.savetxt(tmp_path / "zero.xyz", zero)
+    cases["zero normals"] = (tmp_path / "zero.xyz", "zero-length")
+    flat = np.hstack([p[:, :2], np.zeros((50, 1)), np.tile([0, 0, 1.0], (50, 1))])
+    np.savetxt(tmp_path / "flat.xyz", flat)
+    cases["plane"] = (tmp_path / "flat.xyz", "lie on one plane")
+    twin = np.vstack([np.hstack([p, n]), np.hstack([p[:1], -n[:1]])])
+    np.savetxt(tmp_path / "twin.xyz", twin)
+    cases["identical points"] = (tmp_path / "twin.xyz", "identical")
+    return cases
+
+
+@pytest.mark.parametrize("case", ["empty", "nan", "unknown", "no faces", "zero normals", "plane", "identical points"])
+def test_bad_input_gives_one_line_error_and_no_output(case, tmp_path, capsys):
+    path, message = _bad_inputs(tmp_path)[case]
+    out = tmp_path / "out.ply"
+    code, _, err = run(capsys, "reconstruct", path, "-o", out)
+    assert code == 2
+    assert message in err and err.startswith("jaxrbf: error:")
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+def test_bad_model_files_given_to_mesh(tmp_path, capsys):
+    p, n = sphere(60)
+    good = tmp_path / "good.npz"
+    jaxrbf.save(jaxrbf.fit(jaxrbf.Constraints.from_points(p, n)), good)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(good.read_bytes()[:300])
+    foreign = tmp_path / "foreign.npz"
+    np.savez(foreign, points=p)
+    out = tmp_path / "out.ply"
+    for path, message in [(cut, "truncated or corrupt"), (foreign, "not a jaxrbf model"),
+                          (tmp_path / "missing.npz", "does not exist")]:
+        code, _, err = run(capsys, "mesh", path, "-o", out)
+        assert code == 2 and message in err and "Traceback" not in err
+        assert not out.exists()
+
+
+def test_existing_output_survives_a_failure(tmp_path, capsys):
+    out = tmp_path / "keep.ply"
+    out.write_bytes(b"precious")
+    (tmp_path / "empty.obj").write_text("")
+    assert run(capsys, "reconstruct", tmp_path / "empty.obj", "-o", out)[0] == 2
+    assert out.read_bytes() == b"precious"
+
+
+def test_bad_output_is_refused_before_any_work(tmp_path, capsys):
+    p, n = sphere(50)
+    np.savetxt(tmp_path / "ball.xyz", np.hstack([p, n]))
+    code, _, err = run(capsys, "reconstruct", tmp_path / "ball.xyz", "-o", tmp_path / "out.docx")
+    assert code == 2 and "unsupported format '.docx'" in err and "solving" not in err
+    code, _, err = run(capsys, "reconstruct", tmp_path / "ball.xyz", "-o", tmp_path / "nope" / "o.ply")
+    assert code == 2 and "does not exist" in err
+    code, _, err = run(capsys, "reconstruct", "-o", tmp_path / "o.ply")
+    assert code == 2 and "no input" in err
+
+
+def test_console_script_entry_point(tmp_path):
+    """The installed command, in a separate process: exit status and a clean one-line error."""
+    (tmp_path / "empty.ply").write_text("")
+    proc = subprocess.run([sys.executable, "-m", "jaxrbf.cli", "reconstruct", str(tmp_path / "empty.ply"),
+                           "-o", str(tmp_path / "o.ply")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "jaxrbf: error:" in proc.stderr
+    assert not (tmp_path / "o.ply").exists()

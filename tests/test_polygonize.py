@@ -1,0 +1,93 @@
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import ellipse, sphere, torus, torus_sdf
+
+import jaxrbf
+from jaxrbf import Constraints, InputError
+
+
+def signed_volume(mesh):
+    t = mesh.vertices[mesh.faces]
+    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
+
+
+def euler(mesh):
+    f = mesh.faces
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    return len(mesh.vertices) - len(np.unique(edges, axis=0)) + len(f)
+
+
+def test_analytic_sphere_any_callable():
+    mesh = jaxrbf.polygonize(lambda p: jnp.linalg.norm(p, axis=-1) - 1.0, resolution=40,
+                             bounds=((-1.3,) * 3, (1.3,) * 3))
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 5e-3
+    assert signed_volume(mesh) == pytest.approx(4 / 3 * np.pi, rel=0.02)  # > 0: faces outward
+    assert euler(mesh) == 2
+
+
+def test_sphere_recovered_from_points():
+    p, n = sphere(300)
+    model = jaxrbf.fit(Constraints.from_points(p, n, offset=0.05))
+    mesh = jaxrbf.polygonize(model, resolution=48)
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 0.01
+    assert signed_volume(mesh) == pytest.approx(4 / 3 * np.pi, rel=0.02)
+    assert euler(mesh) == 2
+
+
+def test_torus_recovered_from_points():
+    p, n = torus()
+    model = jaxrbf.fit(Constraints.from_points(p, n, offset=0.05))
+    mesh = jaxrbf.polygonize(model, resolution=64)
+    assert np.abs(torus_sdf(mesh.vertices)).max() < 0.02
+    assert signed_volume(mesh) == pytest.approx(2 * np.pi**2 * 1.0 * 0.35**2, rel=0.03)
+    assert euler(mesh) == 0  # genus one
+
+
+def test_projection_moves_vertices_onto_the_surface():
+    p, n = sphere(200)
+    model = jaxrbf.fit(Constraints.from_points(p, n, offset=0.05))
+    rough = jaxrbf.polygonize(model, resolution=16)
+    fine = jaxrbf.polygonize(model, resolution=16, project=True)
+    assert np.abs(np.asarray(model(fine.vertices))).max() < 1e-8
+    assert np.abs(np.asarray(model(rough.vertices))).max() > 1e-4
+    np.testing.assert_array_equal(rough.faces, fine.faces)
+
+
+def test_project_reports_convergence():
+    f = lambda q: jnp.linalg.norm(q, axis=-1) - 1.0  # noqa: E731
+    start = np.array([[2.0, 0.0, 0.0], [0.0, 0.5, 0.5], [0.0, 0.0, 0.0]])
+    moved, ok = jaxrbf.project(f, start, steps=20, max_step=0.5)
+    np.testing.assert_allclose(np.linalg.norm(moved[:2], axis=1), 1.0, atol=1e-9)
+    assert ok.tolist() == [True, True, False]  # the centre has no gradient direction
+
+
+def test_level_sets():
+    f = lambda q: jnp.linalg.norm(q, axis=-1)  # noqa: E731
+    mesh = jaxrbf.polygonize(f, resolution=40, bounds=((-1,) * 3, (1,) * 3), level=0.5)
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 0.5).max() < 5e-3
+
+
+def test_contour_of_a_polyline_fit():
+    v = ellipse(50)
+    model = jaxrbf.fit(Constraints.from_polyline(v, closed=True, offset=0.05), kernel="thin-plate")
+    curves = jaxrbf.contour(model, resolution=200)
+    assert len(curves) == 1
+    c = curves[0]
+    np.testing.assert_allclose(c[0], c[-1])  # closed
+    assert np.abs((c[:, 0] / 2) ** 2 + c[:, 1] ** 2 - 1).max() < 0.02
+    inner = jaxrbf.contour(model, resolution=200, level=-0.03)
+    assert np.abs(inner[0]).max() < np.abs(c).max()
+
+
+def test_errors():
+    with pytest.raises(InputError, match="`bounds` is needed"):
+        jaxrbf.polygonize(lambda q: q[:, 0])
+    with pytest.raises(InputError, match="never crosses level 0"):
+        jaxrbf.polygonize(lambda q: jnp.ones(q.shape[0]), resolution=8, bounds=((0,) * 3, (1,) * 3))
+    with pytest.raises(InputError, match="NaN or infinite values at"):
+        jaxrbf.polygonize(lambda q: jnp.log(q[:, 0]), resolution=8, bounds=((-1,) * 3, (1,) * 3))
+    with pytest.raises(InputError, match="hi > lo"):
+        jaxrbf.polygonize(lambda q: q[:, 0], resolution=8, bounds=((0,) * 3, (0,) * 3))
+    with pytest.raises(InputError, match="at least 2 samples"):
+        jaxrbf.polygonize(lambda q: q[:, 0], resolution=1, bounds=((0,) * 3, (1,) * 3))

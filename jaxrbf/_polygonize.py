@@ -75,7 +75,7 @@ def sample_grid(
     **Returns:** `(values, spacing)`: an array of the grid's shape (axis k = coordinate k) and the
     spacing per axis.
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     spacing, shape = _grid_shape(np.asarray(lo, float), np.asarray(hi, float), resolution)
     total = int(np.prod(shape))

@@ -64,8 +64,11 @@ def resolve_mesh(name: str | os.PathLike) -> Path:
         available = sorted(p.name for p in DATA_DIR.glob("*.obj")) if DATA_DIR.is_dir() else []
         sys.exit(
             f"error: mesh {str(name)!r} not found (looked for it as given and in {DATA_DIR}). "
-            + (f"Available there: {', '.join(available)}." if available else
-               f"{DATA_DIR} is missing: the shared test meshes are not present on this machine.")
+            + (
+                f"Available there: {', '.join(available)}."
+                if available
+                else f"{DATA_DIR} is missing: the shared test meshes are not present on this machine."
+            )
         )
     return path
 
@@ -97,6 +100,7 @@ def box_queries(points: np.ndarray, n: int, seed: int = 1, pad: float = 0.05) ->
 
 # --- memory -----------------------------------------------------------------------------------
 
+
 def peak_rss_mib() -> float:
     """Peak resident set size of this process so far, MiB (ru_maxrss: KiB on Linux, bytes on
     macOS)."""
@@ -123,6 +127,7 @@ def current_rss_mib() -> float:
 
 # --- timing -----------------------------------------------------------------------------------
 
+
 def timed(fn: Callable[[], object]) -> tuple[object, float]:
     """(fn(), seconds). `fn` must return host data or block on device work itself."""
     t0 = time.perf_counter()
@@ -132,6 +137,7 @@ def timed(fn: Callable[[], object]) -> tuple[object, float]:
 
 # --- subprocess workers -----------------------------------------------------------------------
 
+
 def run_worker(
     script: Path, args: Sequence[str], threads: int, timeout: float | None = None
 ) -> dict:
@@ -139,7 +145,11 @@ def run_worker(
     object it prints as its last line of stdout. Its stderr passes through."""
     cmd = [sys.executable, str(script), *args]
     proc = subprocess.run(
-        cmd, env=thread_env(threads), stdout=subprocess.PIPE, text=True, timeout=timeout,
+        cmd,
+        env=thread_env(threads),
+        stdout=subprocess.PIPE,
+        text=True,
+        timeout=timeout,
         check=False,
     )
     lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
@@ -157,6 +167,7 @@ def emit_result(result: dict) -> None:
 
 
 # --- reporting --------------------------------------------------------------------------------
+
 
 def machine_info() -> dict:
     info = {

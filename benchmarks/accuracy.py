@@ -26,10 +26,14 @@ TARGET_MESHES = ("stanford-bunny.obj", "spot.obj")
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--meshes", nargs="+", default=["stanford-bunny.obj", "spot.obj", "fandisk.obj"])
+    ap.add_argument(
+        "--meshes", nargs="+", default=["stanford-bunny.obj", "spot.obj", "fandisk.obj"]
+    )
     ap.add_argument("--sizes", nargs="+", type=int, default=[2000, 4000])
     ap.add_argument("--resolution", type=int, default=128)
-    ap.add_argument("--samples", type=int, default=200_000, help="surface samples per mesh for the metrics")
+    ap.add_argument(
+        "--samples", type=int, default=200_000, help="surface samples per mesh for the metrics"
+    )
     ap.add_argument("--json", help="write the figures to this file")
     args = ap.parse_args()
 
@@ -50,16 +54,53 @@ def main() -> int:
             m = jaxrbf.metrics.evaluate(mesh, ref, n=args.samples)
             target = TARGET if name in TARGET_MESHES else None
             verdict = "" if target is None else ("PASS" if m["chamfer_l1"] < target else "FAIL")
-            results.append(dict(mesh=name, points=n, fit_s=t_fit, mesh_s=t_mesh,
-                                residual=float(model.residual), **m, verdict=verdict))
-            rows.append([name, n, f"{t_fit:.1f}", f"{t_mesh:.1f}", f"{float(model.residual):.1e}",
-                         f"{100 * m['chamfer_l1']:.3f}%", f"{100 * m['hausdorff']:.2f}%",
-                         f"{m['normal_consistency']:.4f}", f"{m['f_score']:.4f}", verdict])
+            results.append(
+                dict(
+                    mesh=name,
+                    points=n,
+                    fit_s=t_fit,
+                    mesh_s=t_mesh,
+                    residual=float(model.residual),
+                    **m,
+                    verdict=verdict,
+                )
+            )
+            rows.append(
+                [
+                    name,
+                    n,
+                    f"{t_fit:.1f}",
+                    f"{t_mesh:.1f}",
+                    f"{float(model.residual):.1e}",
+                    f"{100 * m['chamfer_l1']:.3f}%",
+                    f"{100 * m['hausdorff']:.2f}%",
+                    f"{m['normal_consistency']:.4f}",
+                    f"{m['f_score']:.4f}",
+                    verdict,
+                ]
+            )
             print(f"{name} {n}: done", file=sys.stderr, flush=True)
-    print(f"jaxrbf {jaxrbf.__version__}, resolution {args.resolution}, cubic kernel, offset 1% of the "
-          f"diagonal; distances in % of the reference's bounding-box diagonal")
-    print(format_table(["mesh", "points", "fit s", "mesh s", "residual", "chamfer-L1", "hausdorff",
-                        "normal cons.", "F@1%", f"chamfer < {100 * TARGET:.1f}%"], rows))
+    print(
+        f"jaxrbf {jaxrbf.__version__}, resolution {args.resolution}, cubic kernel, offset 1% of the "
+        f"diagonal; distances in % of the reference's bounding-box diagonal"
+    )
+    print(
+        format_table(
+            [
+                "mesh",
+                "points",
+                "fit s",
+                "mesh s",
+                "residual",
+                "chamfer-L1",
+                "hausdorff",
+                "normal cons.",
+                "F@1%",
+                f"chamfer < {100 * TARGET:.1f}%",
+            ],
+            rows,
+        )
+    )
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(dict(machine=machine_info(), results=results), fh, indent=2)

@@ -77,6 +77,7 @@ AGREE_TOL = 1e-5
 
 # --- workers (run in fresh subprocesses) ------------------------------------------------------
 
+
 def _worker_jaxrbf(data: dict, repeats: int) -> tuple[dict, np.ndarray]:
     ensure_jaxrbf_importable()
     import jax
@@ -172,6 +173,7 @@ def worker_main(args: argparse.Namespace) -> None:
 
 # --- driver -----------------------------------------------------------------------------------
 
+
 def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
@@ -237,13 +239,22 @@ def report(results: list[dict], args, mesh: Path) -> str:
     rows = []
     for r in results:
         j, s = r["jaxrbf"], r["scipy"]
-        rows.append([
-            r["surface_points"], r["constraints"], f"{j['fit_cold_s']:.2f}", f"{j['fit_s']:.2f}",
-            f"{s['fit_s']:.2f}", f"{r['fit_ratio']:.2f}x",
-            _verdict(r["fit_ratio"] >= FIT_TARGET and r["same_accuracy"]),
-        ])
-    out.append(format_table(
-        ["N", "constraints", "jaxrbf cold", "jaxrbf warm", "scipy", "ratio", "target"], rows))
+        rows.append(
+            [
+                r["surface_points"],
+                r["constraints"],
+                f"{j['fit_cold_s']:.2f}",
+                f"{j['fit_s']:.2f}",
+                f"{s['fit_s']:.2f}",
+                f"{r['fit_ratio']:.2f}x",
+                _verdict(r["fit_ratio"] >= FIT_TARGET and r["same_accuracy"]),
+            ]
+        )
+    out.append(
+        format_table(
+            ["N", "constraints", "jaxrbf cold", "jaxrbf warm", "scipy", "ratio", "target"], rows
+        )
+    )
     out += [
         "",
         f"Evaluation (points/s; jaxrbf: {j0['eval_points']:,} queries, warm; scipy: "
@@ -253,14 +264,33 @@ def report(results: list[dict], args, mesh: Path) -> str:
     rows = []
     for r in results:
         j, s = r["jaxrbf"], r["scipy"]
-        rows.append([
-            r["surface_points"], f"{j['eval_cold_s']:.2f} s", f"{j['eval_s']:.2f} s",
-            fmt_rate(j["eval_rate"]), f"{s['eval_s']:.2f} s", fmt_rate(s["eval_rate"]),
-            f"{r['eval_ratio']:.1f}x", _verdict(r["eval_ratio"] >= EVAL_TARGET),
-        ])
-    out.append(format_table(
-        ["N", "jaxrbf 1st call", "jaxrbf", "jaxrbf rate", "scipy", "scipy rate", "ratio", "target"],
-        rows))
+        rows.append(
+            [
+                r["surface_points"],
+                f"{j['eval_cold_s']:.2f} s",
+                f"{j['eval_s']:.2f} s",
+                fmt_rate(j["eval_rate"]),
+                f"{s['eval_s']:.2f} s",
+                fmt_rate(s["eval_rate"]),
+                f"{r['eval_ratio']:.1f}x",
+                _verdict(r["eval_ratio"] >= EVAL_TARGET),
+            ]
+        )
+    out.append(
+        format_table(
+            [
+                "N",
+                "jaxrbf 1st call",
+                "jaxrbf",
+                "jaxrbf rate",
+                "scipy",
+                "scipy rate",
+                "ratio",
+                "target",
+            ],
+            rows,
+        )
+    )
     out += [
         "",
         "Peak memory (MiB, whole worker process: peak RSS, and in brackets its rise above the "
@@ -269,13 +299,15 @@ def report(results: list[dict], args, mesh: Path) -> str:
     rows = []
     for r in results:
         j, s = r["jaxrbf"], r["scipy"]
-        rows.append([
-            r["surface_points"],
-            f"{j['peak_mib']:.0f} (+{j['peak_mib'] - j['baseline_mib']:.0f})",
-            f"{s['peak_mib']:.0f} (+{s['peak_mib'] - s['baseline_mib']:.0f})",
-            f"{r['memory_ratio']:.2f}",
-            f"{r['memory_rise_ratio']:.2f}",
-        ])
+        rows.append(
+            [
+                r["surface_points"],
+                f"{j['peak_mib']:.0f} (+{j['peak_mib'] - j['baseline_mib']:.0f})",
+                f"{s['peak_mib']:.0f} (+{s['peak_mib'] - s['baseline_mib']:.0f})",
+                f"{r['memory_ratio']:.2f}",
+                f"{r['memory_rise_ratio']:.2f}",
+            ]
+        )
     out.append(format_table(["N", "jaxrbf", "scipy", "scipy / jaxrbf", "(rise)"], rows))
     out += [
         "",
@@ -287,14 +319,22 @@ def report(results: list[dict], args, mesh: Path) -> str:
     rows = []
     for r in results:
         j, s = r["jaxrbf"], r["scipy"]
-        rows.append([
-            r["surface_points"], f"{r['agreement_rel']:.2e}", f"{j['residual_rel']:.2e}",
-            f"{s['residual_rel']:.2e}", f"{j['solve_residual']:.2e}",
-            "yes" if r["same_accuracy"] else "NO",
-        ])
-    out.append(format_table(
-        ["N", "jaxrbf vs scipy", "resid jaxrbf", "resid scipy", "jaxrbf solve resid", "same"],
-        rows))
+        rows.append(
+            [
+                r["surface_points"],
+                f"{r['agreement_rel']:.2e}",
+                f"{j['residual_rel']:.2e}",
+                f"{s['residual_rel']:.2e}",
+                f"{j['solve_residual']:.2e}",
+                "yes" if r["same_accuracy"] else "NO",
+            ]
+        )
+    out.append(
+        format_table(
+            ["N", "jaxrbf vs scipy", "resid jaxrbf", "resid scipy", "jaxrbf solve resid", "same"],
+            rows,
+        )
+    )
     target = next((r for r in results if r["surface_points"] == TARGET_SIZE), results[-1])
     n = target["surface_points"]
     note = "" if n == TARGET_SIZE else f" (the issue's targets are at {TARGET_SIZE}; largest run)"
@@ -316,17 +356,30 @@ def parse_args(argv=None) -> argparse.Namespace:
         description="Fit time, evaluation throughput, peak memory and accuracy of jaxrbf's dense "
         "fit against scipy.interpolate.RBFInterpolator (cubic kernel, degree 1).",
     )
-    p.add_argument("--sizes", type=int, nargs="+", default=[1000, 2000, 4000],
-                   help="surface points N (about 3N constraints each); default 1000 2000 4000")
-    p.add_argument("--mesh", default=DEFAULT_MESH,
-                   help="an .obj path, or a file name in the shared data folder "
-                   f"(default {DEFAULT_MESH})")
-    p.add_argument("--queries", type=int, default=200_000,
-                   help="evaluation points for jaxrbf (default 200000)")
-    p.add_argument("--scipy-queries", type=int, default=20_000,
-                   help="how many of those scipy evaluates (default 20000)")
-    p.add_argument("--repeats", type=int, default=2,
-                   help="timed repetitions; the best is reported (default 2)")
+    p.add_argument(
+        "--sizes",
+        type=int,
+        nargs="+",
+        default=[1000, 2000, 4000],
+        help="surface points N (about 3N constraints each); default 1000 2000 4000",
+    )
+    p.add_argument(
+        "--mesh",
+        default=DEFAULT_MESH,
+        help=f"an .obj path, or a file name in the shared data folder (default {DEFAULT_MESH})",
+    )
+    p.add_argument(
+        "--queries", type=int, default=200_000, help="evaluation points for jaxrbf (default 200000)"
+    )
+    p.add_argument(
+        "--scipy-queries",
+        type=int,
+        default=20_000,
+        help="how many of those scipy evaluates (default 20000)",
+    )
+    p.add_argument(
+        "--repeats", type=int, default=2, help="timed repetitions; the best is reported (default 2)"
+    )
     p.add_argument("--threads", type=int, default=2, help="BLAS/OpenMP threads (default 2)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed (default 0)")
     p.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers to PATH")

@@ -11,7 +11,14 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._errors import InputError
-from ._prepare import diagonal, duplicate_pairs, find_duplicates, polyline_normals, sample_faces, vertex_normals
+from ._prepare import (
+    diagonal,
+    duplicate_pairs,
+    find_duplicates,
+    polyline_normals,
+    sample_faces,
+    vertex_normals,
+)
 
 #: Default offset d as a fraction of the bounding-box diagonal.
 DEFAULT_OFFSET = 0.01
@@ -23,21 +30,29 @@ _SHRINK_STEPS = 8
 def _as_array(a, name: str, dims=(2, 3)) -> np.ndarray:
     a = np.asarray(a, dtype=float)
     if a.ndim != 2:
-        raise InputError(f"`{name}` must be a 2-dimensional array of shape (n, d), got shape {a.shape}")
+        raise InputError(
+            f"`{name}` must be a 2-dimensional array of shape (n, d), got shape {a.shape}"
+        )
     if a.shape[1] not in dims:
-        raise InputError(f"`{name}` must have {' or '.join(map(str, dims))} columns, got {a.shape[1]}")
+        raise InputError(
+            f"`{name}` must have {' or '.join(map(str, dims))} columns, got {a.shape[1]}"
+        )
     if a.shape[0] == 0:
         raise InputError(f"`{name}` is empty: it has no rows")
     bad = ~np.all(np.isfinite(a), axis=1)
     if bad.any():
-        raise InputError(f"`{name}` has {int(bad.sum())} rows with NaN or infinite values (first: row {int(np.argmax(bad))})")
+        raise InputError(
+            f"`{name}` has {int(bad.sum())} rows with NaN or infinite values (first: row {int(np.argmax(bad))})"
+        )
     return a
 
 
 def _unit_normals(normals: np.ndarray, n: int, dim: int) -> np.ndarray:
     normals = _as_array(normals, "normals", (dim,))
     if len(normals) != n:
-        raise InputError(f"`normals` has {len(normals)} rows but `points` has {n}; give one normal per point")
+        raise InputError(
+            f"`normals` has {len(normals)} rows but `points` has {n}; give one normal per point"
+        )
     length = np.linalg.norm(normals, axis=1)
     zero = length <= 1e-12 * max(float(length.max()), 1e-300)
     if zero.any():
@@ -173,9 +188,13 @@ class Constraints(eqx.Module):
         v = _as_array(vertices, "vertices", (3,))
         f = np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
-            raise InputError(f"`faces` must be a non-empty (m, 3) array of vertex indices, got shape {f.shape}")
+            raise InputError(
+                f"`faces` must be a non-empty (m, 3) array of vertex indices, got shape {f.shape}"
+            )
         if f.min() < 0 or f.max() >= len(v):
-            raise InputError(f"`faces` refers to vertex {int(f.max())} but there are only {len(v)} vertices")
+            raise InputError(
+                f"`faces` refers to vertex {int(f.max())} but there are only {len(v)} vertices"
+            )
         f = f.astype(np.int64)
         if points is not None and int(points) < 1:
             raise InputError(f"`points` must be a positive number of samples, got {points}")
@@ -220,7 +239,9 @@ class Constraints(eqx.Module):
         if closed and len(v) > 1 and np.all(v[0] == v[-1]):
             v = v[:-1]
         if len(v) < (3 if closed else 2):
-            raise InputError(f"a {'closed' if closed else 'open'} polyline needs at least {3 if closed else 2} distinct vertices, got {len(v)}")
+            raise InputError(
+                f"a {'closed' if closed else 'open'} polyline needs at least {3 if closed else 2} distinct vertices, got {len(v)}"
+            )
         return cls.from_points(v, polyline_normals(v, closed), offset, validate=validate)
 
     def report(self) -> str:

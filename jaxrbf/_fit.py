@@ -125,7 +125,9 @@ def fit(
     n, dim = x.shape
     k = n_poly(degree, dim)
     if n <= k:
-        raise InputError(f"{n} points cannot determine a degree-{degree} polynomial in {dim}-D plus weights; give more than {k}")
+        raise InputError(
+            f"{n} points cannot determine a degree-{degree} polynomial in {dim}-D plus weights; give more than {k}"
+        )
     if not np.any(h != 0):
         raise InputError(
             "every value is 0, so the only solution is f = 0 (the paper's trivial solution); "
@@ -157,7 +159,14 @@ def fit(
     if verbose:
         log(f"solving {n + k:,} unknowns: {kern.name} kernel, degree {degree}, {solver}, float64")
     sol = solve_system(
-        kern, jnp.asarray(xn), jnp.asarray(h), jnp.asarray(smoothing), degree, solver, rtol, max_steps
+        kern,
+        jnp.asarray(xn),
+        jnp.asarray(h),
+        jnp.asarray(smoothing),
+        degree,
+        solver,
+        rtol,
+        max_steps,
     )
     residual = float(sol.residual)
     steps = int(sol.steps)

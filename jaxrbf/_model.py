@@ -110,7 +110,7 @@ class RBFModel(eqx.Module):
             )
         return x.reshape(-1, self.dim).astype(self.centres.dtype), x.shape[:-1]
 
-    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
+    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, ...]:
         """f at points `x` of shape (..., d); returns shape (...)."""
         flat, lead = self._flat(x)
         rows = block_rows(self.centres.shape[0])

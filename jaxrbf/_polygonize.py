@@ -33,9 +33,13 @@ def _bounds(implicit, bounds, dim: int | None, padding: float):
         except (TypeError, ValueError):
             raise InputError("`bounds` must be a pair (lo, hi) of coordinate tuples") from None
     if lo.shape != hi.shape or (dim is not None and lo.shape != (dim,)):
-        raise InputError(f"`bounds` must be two points of dimension {dim}, got {lo.shape} and {hi.shape}")
+        raise InputError(
+            f"`bounds` must be two points of dimension {dim}, got {lo.shape} and {hi.shape}"
+        )
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
-        raise InputError(f"`bounds` must be finite with hi > lo on every axis, got lo={lo}, hi={hi}")
+        raise InputError(
+            f"`bounds` must be finite with hi > lo on every axis, got lo={lo}, hi={hi}"
+        )
     return lo, hi
 
 
@@ -91,7 +95,9 @@ def sample_grid(
     out = out.reshape(shape)
     bad = ~np.isfinite(out)
     if bad.any():
-        raise InputError(f"the implicit returned NaN or infinite values at {int(bad.sum())} of {total} grid points")
+        raise InputError(
+            f"the implicit returned NaN or infinite values at {int(bad.sum())} of {total} grid points"
+        )
     return out, spacing
 
 
@@ -129,7 +135,9 @@ def polygonize(
             f"f never crosses level {level} inside the bounds (values from {vol.min():.3g} to "
             f"{vol.max():.3g}): widen `bounds` or check the fit"
         )
-    verts, faces, normals, _ = marching_cubes(vol, level, spacing=tuple(spacing), allow_degenerate=False)
+    verts, faces, normals, _ = marching_cubes(
+        vol, level, spacing=tuple(spacing), allow_degenerate=False
+    )
     verts = verts + lo
     faces = faces.astype(np.int64)
     # marching_cubes' normals point down the gradient ('descent'); ours should point up it.

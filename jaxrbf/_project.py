@@ -23,7 +23,9 @@ def value_and_gradient(implicit: Callable, points) -> tuple[jax.Array, jax.Array
         return vals, pullback(jnp.ones_like(vals))[0]
 
     p = jnp.asarray(points)
-    both = map_blocks(lambda b: jnp.concatenate([x.reshape(b.shape[0], -1) for x in block(b)], 1), p, _ROWS)
+    both = map_blocks(
+        lambda b: jnp.concatenate([x.reshape(b.shape[0], -1) for x in block(b)], 1), p, _ROWS
+    )
     return both[:, 0], both[:, 1:]
 
 

@@ -77,7 +77,9 @@ def constraints_from(
         name = os.fspath(source)
     else:
         if normals is None:
-            raise InputError("`normals` are needed with an array of points (one outward normal per point)")
+            raise InputError(
+                "`normals` are needed with an array of points (one outward normal per point)"
+            )
         data = io.PointCloud(io.as_points(source, "points"), np.asarray(normals, dtype=float))
         name = "the points"
     if isinstance(data, io.Mesh):
@@ -85,7 +87,9 @@ def constraints_from(
         check_not_flat(v, f"vertices of {name}")
         k = points if points is not None else min(len(v), DEFAULT_POINTS)
         if verbose and points is None and len(v) > DEFAULT_POINTS:
-            log(f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)")
+            log(
+                f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)"
+            )
         c = Constraints.from_mesh(v, f, frac * diagonal(v), points=k, sampling=sampling, seed=seed)
     elif isinstance(data, io.Polyline):
         c = Constraints.from_polyline(data.vertices, data.closed, frac * diagonal(data.vertices))
@@ -139,7 +143,15 @@ def fit_surface(
         r = (DEFAULT_RADIUS if radius is None else float(radius)) * diagonal(np.asarray(c.points))
     elif radius is not None:
         raise InputError(f"the {cls.name} kernel has no radius; leave --radius unset")
-    return fit(c, kernel=kernel, radius=r, degree=degree, smoothing=smoothing, solver=solver, verbose=verbose)
+    return fit(
+        c,
+        kernel=kernel,
+        radius=r,
+        degree=degree,
+        smoothing=smoothing,
+        solver=solver,
+        verbose=verbose,
+    )
 
 
 def reconstruct(
@@ -171,5 +183,7 @@ def reconstruct(
         return out
     mesh = polygonize(model, resolution=resolution, project=project, progress=progress)
     if verbose:
-        log(f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in {time.perf_counter() - t0:.1f} s")
+        log(
+            f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in {time.perf_counter() - t0:.1f} s"
+        )
     return mesh

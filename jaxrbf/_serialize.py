@@ -71,8 +71,22 @@ def load(path) -> RBFModel:
         ) from None
     if data.get("format", np.array("")).item() != FORMAT:
         raise InputError(f"'{path}' is not a jaxrbf model (it has no format='{FORMAT}' entry)")
-    missing = [k for k in ("format_version", "kernel", "radius", "degree", "centres", "weights",
-                           "coeffs", "shift", "scale", "residual") if k not in data]
+    missing = [
+        k
+        for k in (
+            "format_version",
+            "kernel",
+            "radius",
+            "degree",
+            "centres",
+            "weights",
+            "coeffs",
+            "shift",
+            "scale",
+            "residual",
+        )
+        if k not in data
+    ]
     if missing:
         raise InputError(f"'{path}' is an incomplete jaxrbf model: missing {', '.join(missing)}")
     version = int(data["format_version"])

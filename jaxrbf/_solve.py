@@ -107,7 +107,9 @@ def solve_system(
         else:
 
             def c_apply(v):
-                return project(kernel_matvec(kernel, centres, project(v), smoothing)) + q1 @ (q1.T @ v)
+                return project(kernel_matvec(kernel, centres, project(v), smoothing)) + q1 @ (
+                    q1.T @ v
+                )
 
             op = lx.FunctionLinearOperator(
                 c_apply, jax.ShapeDtypeStruct((n,), h.dtype), lx.positive_semidefinite_tag

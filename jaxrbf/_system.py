@@ -38,7 +38,9 @@ def kernel_matvec(kernel: AbstractKernel, centres: Array, v: Array, smoothing) -
     return av + smoothing * v
 
 
-def saddle_matvec(kernel, centres, degree: int, smoothing, w: Array, a: Array) -> tuple[Array, Array]:
+def saddle_matvec(
+    kernel, centres, degree: int, smoothing, w: Array, a: Array
+) -> tuple[Array, Array]:
     """B [w; a], matrix-free."""
     p = poly_basis(centres, degree)
     return kernel_matvec(kernel, centres, w, smoothing) + p @ a, p.T @ w

@@ -22,20 +22,43 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
 
     g = p.add_argument_group("fitting")
     g.add_argument("--points", type=int, help="surface points to use (default: all, at most 4000)")
-    g.add_argument("--sampling", choices=("faces", "vertices"), default="faces",
-                   help="for meshes: uniform samples with face normals, or vertices with area-weighted normals")
-    g.add_argument("--kernel", choices=list(KERNELS), help="default: cubic in 3-D, thin-plate in 2-D")
-    g.add_argument("--radius", type=float, help="kernel radius, fraction of the bounding-box diagonal (default 0.1)")
-    g.add_argument("--offset", type=float, help="off-surface distance d, fraction of the diagonal (default 0.01)")
-    g.add_argument("--smoothing", type=float, default=0.0, help="lambda added to the diagonal (default 0)")
+    g.add_argument(
+        "--sampling",
+        choices=("faces", "vertices"),
+        default="faces",
+        help="for meshes: uniform samples with face normals, or vertices with area-weighted normals",
+    )
+    g.add_argument(
+        "--kernel", choices=list(KERNELS), help="default: cubic in 3-D, thin-plate in 2-D"
+    )
+    g.add_argument(
+        "--radius",
+        type=float,
+        help="kernel radius, fraction of the bounding-box diagonal (default 0.1)",
+    )
+    g.add_argument(
+        "--offset",
+        type=float,
+        help="off-surface distance d, fraction of the diagonal (default 0.01)",
+    )
+    g.add_argument(
+        "--smoothing", type=float, default=0.0, help="lambda added to the diagonal (default 0)"
+    )
     g.add_argument("--solver", choices=SOLVERS, default="lu")
-    g.add_argument("--degree", type=int, choices=(-1, 0, 1), default=1, help="polynomial degree (default 1)")
+    g.add_argument(
+        "--degree", type=int, choices=(-1, 0, 1), default=1, help="polynomial degree (default 1)"
+    )
     g.add_argument("--seed", type=int, default=0, help="seed of the surface sampling")
 
 
 def _mesh_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("meshing")
-    g.add_argument("--resolution", type=int, default=128, help="grid samples along the longest side (default 128)")
+    g.add_argument(
+        "--resolution",
+        type=int,
+        default=128,
+        help="grid samples along the longest side (default 128)",
+    )
     g.add_argument("--project", action="store_true", help="Newton-project vertices onto f = 0")
 
 
@@ -43,14 +66,26 @@ def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
     parser = argparse.ArgumentParser(
-        prog="jaxrbf", description="Implicit surfaces from radial basis functions (meshes, point clouds, polylines)."
+        prog="jaxrbf",
+        description="Implicit surfaces from radial basis functions (meshes, point clouds, polylines).",
     )
     parser.add_argument("--version", action="version", version=f"jaxrbf {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("reconstruct", help="input file -> surface mesh (or curves, for a 2-D polyline)")
-    r.add_argument("input", nargs="?", help="mesh (.obj .ply .stl .off), point cloud with normals (.ply .xyz .npz) or polyline (.csv .npy)")
-    r.add_argument("-o", "--output", required=True, help="mesh (.ply .obj .stl .off) or, in 2-D, curves (.csv .npz)")
+    r = sub.add_parser(
+        "reconstruct", help="input file -> surface mesh (or curves, for a 2-D polyline)"
+    )
+    r.add_argument(
+        "input",
+        nargs="?",
+        help="mesh (.obj .ply .stl .off), point cloud with normals (.ply .xyz .npz) or polyline (.csv .npy)",
+    )
+    r.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="mesh (.ply .obj .stl .off) or, in 2-D, curves (.csv .npz)",
+    )
     r.add_argument("--example", choices=("bunny",), help="use the bundled example instead of INPUT")
     _fit_options(r)
     _mesh_options(r)
@@ -72,8 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("evaluate", help="compare a mesh with a reference mesh")
     e.add_argument("mesh")
     e.add_argument("--reference", required=True)
-    e.add_argument("--samples", type=int, default=100_000, help="surface samples per mesh (default 100000)")
-    e.add_argument("--threshold", type=float, default=0.01, help="F-score threshold, fraction of the diagonal")
+    e.add_argument(
+        "--samples", type=int, default=100_000, help="surface samples per mesh (default 100000)"
+    )
+    e.add_argument(
+        "--threshold", type=float, default=0.01, help="F-score threshold, fraction of the diagonal"
+    )
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return parser
 
@@ -83,7 +122,9 @@ def _check_output(path: str, allowed: tuple[str, ...]) -> None:
 
     ext = os.path.splitext(path)[1].lower()
     if ext not in allowed:
-        raise InputError(f"output '{path}' has an unsupported format '{ext}'; expected one of {', '.join(allowed)}")
+        raise InputError(
+            f"output '{path}' has an unsupported format '{ext}'; expected one of {', '.join(allowed)}"
+        )
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise InputError(f"the folder of output '{path}' does not exist")
@@ -103,9 +144,18 @@ def _source(args):
 
 
 def _fit_kwargs(args) -> dict:
-    return dict(kernel=args.kernel, radius=args.radius, degree=args.degree, smoothing=args.smoothing,
-                solver=args.solver, points=args.points, sampling=args.sampling, offset=args.offset,
-                seed=args.seed, verbose=not args.quiet)
+    return dict(
+        kernel=args.kernel,
+        radius=args.radius,
+        degree=args.degree,
+        smoothing=args.smoothing,
+        solver=args.solver,
+        points=args.points,
+        sampling=args.sampling,
+        offset=args.offset,
+        seed=args.seed,
+        verbose=not args.quiet,
+    )
 
 
 def _write_surface(model, args) -> None:
@@ -120,7 +170,9 @@ def _write_surface(model, args) -> None:
         io.write_polylines(args.output, curves)
         what = f"{len(curves)} curves"
     else:
-        mesh = polygonize(model, resolution=args.resolution, project=args.project, progress=progress)
+        mesh = polygonize(
+            model, resolution=args.resolution, project=args.project, progress=progress
+        )
         io.write_mesh(args.output, mesh)
         what = f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces"
     if not args.quiet:
@@ -160,8 +212,12 @@ def _run(args) -> int:
     elif args.command == "evaluate":
         from .metrics import evaluate
 
-        scores = evaluate(io.read_mesh(args.mesh), io.read_mesh(args.reference), n=args.samples,
-                          threshold=args.threshold)
+        scores = evaluate(
+            io.read_mesh(args.mesh),
+            io.read_mesh(args.reference),
+            n=args.samples,
+            threshold=args.threshold,
+        )
         if args.json:
             print(json.dumps(scores, indent=2))
         else:

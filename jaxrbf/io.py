@@ -4,13 +4,13 @@ Every problem with a file or an array raises `jaxrbf.InputError` with a message 
 file (or argument), says what is wrong and how to fix it. Writers are atomic: the output appears
 only once it is complete, and an existing file is left untouched when writing fails.
 
-| extension | reads as | written by |
-|---|---|---|
-| `.obj` `.stl` `.off` | mesh | `write_mesh` |
-| `.ply` | mesh if it has faces, else point cloud (x y z, optional nx ny nz) | `write_mesh`, `write_points` |
-| `.xyz` `.txt` | point cloud: 3 columns (x y z) or 6 (x y z nx ny nz) | `write_points` (`.xyz`) |
-| `.npz` | `points` (+ `normals`): point cloud; `vertices` + `faces`: mesh | `write_points`, `write_mesh`, `write_polylines` |
-| `.csv` `.npy` | 2-D polyline (two columns x, y) | `write_polylines` (`.csv`) |
+- `.obj` `.stl` `.off`: mesh (`write_mesh`).
+- `.ply`: mesh if it has faces, else point cloud: x y z, optional nx ny nz (`write_mesh`,
+  `write_points`).
+- `.xyz` `.txt`: point cloud, 3 columns (x y z) or 6 (x y z nx ny nz) (`write_points`: `.xyz`).
+- `.npz`: `points` (+ `normals`): point cloud; `vertices` + `faces`: mesh (`write_points`,
+  `write_mesh`; `write_polylines` writes `contour_0`, `contour_1`, ...).
+- `.csv` `.npy`: 2-D polyline, two columns x, y (`write_polylines`: `.csv`).
 """
 
 from __future__ import annotations
@@ -156,7 +156,9 @@ def as_points(array, name: str = "points", dims: tuple[int, ...] = (2, 3)) -> np
     try:
         a = np.asarray(array, dtype=np.float64)
     except (TypeError, ValueError) as e:
-        raise InputError(f"`{name}` must be an array of numbers of shape (n, d): {_short(e)}") from e
+        raise InputError(
+            f"`{name}` must be an array of numbers of shape (n, d): {_short(e)}"
+        ) from e
     if a.ndim != 2:
         raise InputError(
             f"`{name}` must be a 2-dimensional array of shape (n, d), got shape {a.shape}"
@@ -262,11 +264,11 @@ def _empty(p: str) -> InputError:
     return InputError(f"'{p}' is empty: it holds no vertices")
 
 
-def _check_finite(p: str, a: np.ndarray, what: str = "vertices") -> None:
+def _check_finite(p: str, a: np.ndarray) -> None:
     bad = _count_nonfinite(a)
     if bad:
         raise InputError(
-            f"'{p}' has {bad} {what if bad != 1 else what[:-1]} with NaN or infinite "
+            f"'{p}' has {bad} {'vertex' if bad == 1 else 'vertices'} with NaN or infinite "
             "coordinates; remove or repair them"
         )
 
@@ -309,6 +311,39 @@ def _trimesh_load(p: str, ext: str):
         ) from e
 
 
+def _read_obj(p: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Vertices (the `v` lines, in order) and fan-triangulated faces of a Wavefront OBJ.
+
+    Parsed here rather than by trimesh, which splits vertices along texture seams and drops
+    unreferenced ones.
+    """
+    verts: list[list[str]] = []
+    faces: list[list[int]] = []
+    lineno = 0
+    try:
+        with open(p, encoding="utf-8", errors="replace") as fh:
+            for lineno, line in enumerate(fh, 1):  # noqa: B007 (used in the message)
+                if line.startswith(("v ", "v\t")):
+                    w = line.split()
+                    if len(w) < 4:
+                        raise ValueError("a `v` line needs 3 coordinates")
+                    verts.append(w[1:4])
+                elif line.startswith(("f ", "f\t")):
+                    idx = [int(w.split("/", 1)[0]) for w in line.split()[1:]]
+                    if len(idx) < 3 or 0 in idx:
+                        raise ValueError("a face needs at least 3 vertex indices, counted from 1")
+                    n = len(verts)
+                    idx = [i - 1 if i > 0 else n + i for i in idx]
+                    faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+        v = np.array(verts, dtype=np.float64).reshape(-1, 3)
+    except (ValueError, UnicodeError) as e:
+        raise InputError(
+            f"'{p}' could not be read as OBJ: line {lineno}: {_short(e)}; check that the file is "
+            "complete and in that format"
+        ) from e
+    return v, (np.array(faces, dtype=np.int64) if faces else None)
+
+
 def _load_geometry(p: str, ext: str):
     """(vertices, faces or None, ply vertex properties or {}) as trimesh reads them."""
     import trimesh
@@ -346,12 +381,19 @@ def _load_geometry(p: str, ext: str):
 
 def _npz(p: str) -> dict[str, np.ndarray]:
     try:
-        with np.load(p, allow_pickle=False) as z:
-            return {k: np.asarray(z[k]) for k in z.files}
+        # Open the file here: np.load leaks its handle when the zip is corrupt.
+        with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+            out = {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as e:
         raise InputError(
             f"'{p}' could not be read as an .npz archive: {_short(e)}; the file may be truncated"
         ) from e
+    for k, a in out.items():
+        if not isinstance(a, np.ndarray):  # np.load returns raw bytes for a member that is no .npy
+            raise InputError(
+                f"'{p}' could not be read as an .npz archive: member '{k}' is not a .npy array"
+            )
+    return out
 
 
 def _loadtxt(p: str, what: str, **kw) -> np.ndarray:
@@ -372,8 +414,10 @@ def _loadtxt(p: str, what: str, **kw) -> np.ndarray:
 def read_mesh(path) -> Mesh:
     """Read a triangle mesh (`.obj`, `.ply`, `.stl`, `.off`, or `.npz` with `vertices`, `faces`).
 
-    Nothing is merged or reordered, except in `.stl`, which stores every triangle's corners
-    separately: there, exactly coincident corners are joined so the mesh is connected.
+    Vertices are kept as the file lists them (none merged, split, reordered or dropped, even
+    unreferenced ones); polygons are split into triangles. The exception is `.stl`, which stores
+    every triangle's corners separately: there, exactly coincident corners are joined so that the
+    mesh is connected.
 
     **Arguments:**
     - `path`: the file.
@@ -386,7 +430,10 @@ def read_mesh(path) -> Mesh:
     p, ext = _check_file(path, _MESH_INPUTS)
     if ext == ".npz":
         return _npz_mesh(p, _npz(p))
-    vertices, faces, _ = _load_geometry(p, ext)
+    if ext == ".obj":
+        vertices, faces = _read_obj(p)
+    else:
+        vertices, faces, _ = _load_geometry(p, ext)
     if len(vertices) == 0:
         raise _empty(p)
     if faces is None:
@@ -402,10 +449,13 @@ def read_mesh(path) -> Mesh:
 
 
 def _validated_mesh(p: str, vertices: np.ndarray, faces: np.ndarray) -> Mesh:
-    try:
-        faces = _as_faces(faces, len(vertices))
-    except InputError as e:
-        raise InputError(f"'{p}': {e}") from None
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    bad = np.count_nonzero(((faces < 0) | (faces >= len(vertices))).any(axis=1))
+    if bad:
+        raise InputError(
+            f"'{p}' has {bad} face{'s' if bad != 1 else ''} referring to vertices it does not "
+            f"hold (it has {len(vertices)} vertices); the file is corrupt or truncated"
+        )
     return Mesh(np.ascontiguousarray(vertices, dtype=np.float64), faces)
 
 
@@ -458,7 +508,9 @@ def read_points(path) -> PointCloud:
             )
         points, normals = z["points"], z.get("normals")
         if points.ndim != 2 or points.shape[1] not in (2, 3):
-            raise InputError(f"'{p}': `points` must have shape (n, 2) or (n, 3), got {points.shape}")
+            raise InputError(
+                f"'{p}': `points` must have shape (n, 2) or (n, 3), got {points.shape}"
+            )
         if normals is not None and normals.shape != points.shape:
             raise InputError(
                 f"'{p}': `normals` must have the shape of `points` {points.shape}, got "
@@ -515,7 +567,8 @@ def read_polyline(path, closed: bool | None = None) -> Polyline:
     p, ext = _check_file(path, _POLYLINE_INPUTS)
     if ext == ".npy":
         try:
-            v = np.load(p, allow_pickle=False)
+            with open(p, "rb") as fh:
+                v = np.load(fh, allow_pickle=False)
         except (ValueError, OSError, EOFError) as e:
             raise InputError(f"'{p}' could not be read as a .npy array: {_short(e)}") from e
         if v.ndim != 2 or v.shape[1] != 2:
@@ -539,9 +592,7 @@ def read_polyline(path, closed: bool | None = None) -> Polyline:
         if v.size == 0:
             raise _empty(p)
         if v.shape[1] != 2:
-            raise InputError(
-                f"'{p}' has {v.shape[1]} columns; a polyline needs exactly 2 (x, y)"
-            )
+            raise InputError(f"'{p}' has {v.shape[1]} columns; a polyline needs exactly 2 (x, y)")
     v = np.asarray(v, dtype=np.float64)
     if len(v) == 0:
         raise _empty(p)
@@ -623,7 +674,9 @@ def atomic_output(path) -> Iterator[str]:
     p = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(p))
     if not os.path.isdir(folder):
-        raise InputError(f"cannot write '{p}': the folder '{folder}' does not exist; create it first")
+        raise InputError(
+            f"cannot write '{p}': the folder '{folder}' does not exist; create it first"
+        )
     base = os.path.basename(p)
     suffix = Path(base).suffix
     stem = base[: len(base) - len(suffix)] if suffix else base
@@ -742,9 +795,7 @@ def write_points(path, points, normals=None) -> None:
     if normals is not None:
         n = as_points(normals, "normals", dims=dims)
         if n.shape != p.shape:
-            raise InputError(
-                f"`normals` must have the shape of `points` {p.shape}, got {n.shape}"
-            )
+            raise InputError(f"`normals` must have the shape of `points` {p.shape}, got {n.shape}")
     with atomic_output(path) as tmp:
         if ext == ".ply":
             _write_ply(tmp, p, n, None)

@@ -70,10 +70,10 @@ class AbstractKernel(eqx.Module):
     #: scales with the coordinates instead). Used to express `smoothing` in the input's units.
     homogeneity: ClassVar[int] = 0
 
-    def from_r2(self, r2: Float[Array, "..."]) -> Float[Array, "..."]:
+    def from_r2(self, r2: Float[Array, ...]) -> Float[Array, ...]:
         raise NotImplementedError
 
-    def __call__(self, r: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
+    def __call__(self, r: Float[ArrayLike, ...]) -> Float[Array, ...]:
         """phi(r) for distances `r` (not squared)."""
         r = jnp.asarray(r)
         return self.from_r2(r * r)
@@ -184,7 +184,8 @@ class Wendland(_RadiusKernel):
 
 
 KERNELS: dict[str, type[AbstractKernel]] = {
-    k.name: k for k in (Linear, Cubic, ThinPlate, Gaussian, Multiquadric, InverseMultiquadric, Wendland)
+    k.name: k
+    for k in (Linear, Cubic, ThinPlate, Gaussian, Multiquadric, InverseMultiquadric, Wendland)
 }
 _ALIASES = {
     "thin_plate_spline": "thin-plate",
@@ -206,7 +207,9 @@ def kernel_class(name: str) -> type[AbstractKernel]:
     return KERNELS[key]
 
 
-def make_kernel(kernel: str | AbstractKernel, radius: float | Array | None = None) -> AbstractKernel:
+def make_kernel(
+    kernel: str | AbstractKernel, radius: float | Array | None = None
+) -> AbstractKernel:
     """A kernel from its name (scipy's spellings are accepted) or an instance.
 
     **Arguments:**
@@ -217,7 +220,9 @@ def make_kernel(kernel: str | AbstractKernel, radius: float | Array | None = Non
     """
     if isinstance(kernel, AbstractKernel):
         if radius is not None:
-            raise InputError("`radius` was given together with a kernel instance; set it on the kernel")
+            raise InputError(
+                "`radius` was given together with a kernel instance; set it on the kernel"
+            )
         return kernel
     cls = kernel_class(kernel)
     key = cls.name

@@ -33,7 +33,9 @@ def test_reconstruct_fit_mesh_evaluate_on_spot(tmp_path, capsys):
     code, _, err = run(capsys, "mesh", model, "-o", again, "--resolution", 32, "--project")
     assert code == 0, err
     mesh = jaxrbf.io.read_mesh(again)
-    assert np.abs(np.asarray(jaxrbf.load(model)(mesh.vertices))).max() < 1e-6  # projected onto f = 0
+    assert (
+        np.abs(np.asarray(jaxrbf.load(model)(mesh.vertices))).max() < 1e-6
+    )  # projected onto f = 0
 
 
 def test_point_cloud_and_kernel_options(tmp_path, capsys):
@@ -41,14 +43,40 @@ def test_point_cloud_and_kernel_options(tmp_path, capsys):
     src = tmp_path / "ball.xyz"
     np.savetxt(src, np.hstack([p, n]))
     out = tmp_path / "ball.stl"
-    code, _, err = run(capsys, "reconstruct", src, "-o", out, "--kernel", "multiquadric", "--radius", 0.1,
-                       "--solver", "cholesky", "--resolution", 32, "-q")
+    code, _, err = run(
+        capsys,
+        "reconstruct",
+        src,
+        "-o",
+        out,
+        "--kernel",
+        "multiquadric",
+        "--radius",
+        0.1,
+        "--solver",
+        "cholesky",
+        "--resolution",
+        32,
+        "-q",
+    )
     assert code == 0, err
     v = jaxrbf.io.read_mesh(out).vertices
     assert np.abs(np.linalg.norm(v, axis=1) - 1).max() < 0.01
     # a Gaussian as wide as the shape makes the system numerically singular: a clear error
-    code, _, err = run(capsys, "reconstruct", src, "-o", tmp_path / "g.ply", "--kernel", "gaussian",
-                       "--radius", 0.3, "--solver", "cholesky", "-q")
+    code, _, err = run(
+        capsys,
+        "reconstruct",
+        src,
+        "-o",
+        tmp_path / "g.ply",
+        "--kernel",
+        "gaussian",
+        "--radius",
+        0.3,
+        "--solver",
+        "cholesky",
+        "-q",
+    )
     assert code == 2 and "singular" in err and not (tmp_path / "g.ply").exists()
 
 
@@ -89,7 +117,9 @@ def _bad_inputs(tmp_path):
     return cases
 
 
-@pytest.mark.parametrize("case", ["empty", "nan", "unknown", "no faces", "zero normals", "plane", "identical points"])
+@pytest.mark.parametrize(
+    "case", ["empty", "nan", "unknown", "no faces", "zero normals", "plane", "identical points"]
+)
 def test_bad_input_gives_one_line_error_and_no_output(case, tmp_path, capsys):
     path, message = _bad_inputs(tmp_path)[case]
     out = tmp_path / "out.ply"
@@ -109,8 +139,11 @@ def test_bad_model_files_given_to_mesh(tmp_path, capsys):
     foreign = tmp_path / "foreign.npz"
     np.savez(foreign, points=p)
     out = tmp_path / "out.ply"
-    for path, message in [(cut, "truncated or corrupt"), (foreign, "not a jaxrbf model"),
-                          (tmp_path / "missing.npz", "does not exist")]:
+    for path, message in [
+        (cut, "truncated or corrupt"),
+        (foreign, "not a jaxrbf model"),
+        (tmp_path / "missing.npz", "does not exist"),
+    ]:
         code, _, err = run(capsys, "mesh", path, "-o", out)
         assert code == 2 and message in err and "Traceback" not in err
         assert not out.exists()
@@ -129,7 +162,9 @@ def test_bad_output_is_refused_before_any_work(tmp_path, capsys):
     np.savetxt(tmp_path / "ball.xyz", np.hstack([p, n]))
     code, _, err = run(capsys, "reconstruct", tmp_path / "ball.xyz", "-o", tmp_path / "out.docx")
     assert code == 2 and "unsupported format '.docx'" in err and "solving" not in err
-    code, _, err = run(capsys, "reconstruct", tmp_path / "ball.xyz", "-o", tmp_path / "nope" / "o.ply")
+    code, _, err = run(
+        capsys, "reconstruct", tmp_path / "ball.xyz", "-o", tmp_path / "nope" / "o.ply"
+    )
     assert code == 2 and "does not exist" in err
     code, _, err = run(capsys, "reconstruct", "-o", tmp_path / "o.ply")
     assert code == 2 and "no input" in err
@@ -138,8 +173,20 @@ def test_bad_output_is_refused_before_any_work(tmp_path, capsys):
 def test_console_script_entry_point(tmp_path):
     """The installed command, in a separate process: exit status and a clean one-line error."""
     (tmp_path / "empty.ply").write_text("")
-    proc = subprocess.run([sys.executable, "-m", "jaxrbf.cli", "reconstruct", str(tmp_path / "empty.ply"),
-                           "-o", str(tmp_path / "o.ply")], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jaxrbf.cli",
+            "reconstruct",
+            str(tmp_path / "empty.ply"),
+            "-o",
+            str(tmp_path / "o.ply"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "jaxrbf: error:" in proc.stderr
     assert not (tmp_path / "o.ply").exists()

@@ -54,7 +54,9 @@ def test_duplicates_are_merged():
     c = Constraints.from_points(np.vstack([p, p[:3]]), np.vstack([n, n[:3]]), offset=0.1)
     assert c.n_surface == 50 and c.n_merged == 3
     assert "3 duplicate points merged" in c.report()
-    with pytest.raises(InputError, match="points 0 and 50 are identical but their normals disagree"):
+    with pytest.raises(
+        InputError, match="points 0 and 50 are identical but their normals disagree"
+    ):
         Constraints.from_points(np.vstack([p, p[:1]]), np.vstack([n, -n[:1]]))
 
 
@@ -68,7 +70,11 @@ def test_from_mesh_faces_and_vertices():
     assert np.abs(np.linalg.norm(on, axis=1) - 1).max() < 0.02  # on the (faceted) sphere
     cv = Constraints.from_mesh(m.vertices, m.faces, sampling="vertices", offset=0.05)
     assert cv.n_surface == len(m.vertices)
-    np.testing.assert_allclose(np.linalg.norm(np.asarray(cv.points)[cv.n_surface : 2 * cv.n_surface], axis=1), 1.05, atol=1e-4)
+    np.testing.assert_allclose(
+        np.linalg.norm(np.asarray(cv.points)[cv.n_surface : 2 * cv.n_surface], axis=1),
+        1.05,
+        atol=1e-4,
+    )
 
 
 def test_vertex_normals_are_area_weighted_and_outward():

@@ -1,12 +1,11 @@
 import numpy as np
 import pytest
+from helpers import franke
 from scipy.interpolate import RBFInterpolator
 
 import jaxrbf
 from jaxrbf import InputError, SolveError
 from jaxrbf._fit import DENSE_LIMIT
-
-from helpers import franke
 
 RNG = np.random.default_rng(42)
 X = RNG.random((300, 3))
@@ -14,15 +13,26 @@ Y = np.sin(3 * X[:, 0]) + X[:, 1] * X[:, 2]
 Q = RNG.random((500, 3))
 
 SCIPY_NAMES = {"thin-plate": "thin_plate_spline", "inverse-multiquadric": "inverse_multiquadric"}
-CASES = [("cubic", None), ("linear", None), ("thin-plate", None), ("gaussian", 0.4),
-         ("multiquadric", 0.5), ("inverse-multiquadric", 0.5)]
+CASES = [
+    ("cubic", None),
+    ("linear", None),
+    ("thin-plate", None),
+    ("gaussian", 0.4),
+    ("multiquadric", 0.5),
+    ("inverse-multiquadric", 0.5),
+]
 
 
 @pytest.mark.parametrize("kernel, radius", CASES)
 def test_matches_scipy_rbfinterpolator(kernel, radius):
     model = jaxrbf.fit(X, Y, kernel=kernel, radius=radius)
-    ref = RBFInterpolator(X, Y, kernel=SCIPY_NAMES.get(kernel, kernel), degree=1,
-                          epsilon=1 / radius if radius else 1.0)
+    ref = RBFInterpolator(
+        X,
+        Y,
+        kernel=SCIPY_NAMES.get(kernel, kernel),
+        degree=1,
+        epsilon=1 / radius if radius else 1.0,
+    )
     np.testing.assert_allclose(np.asarray(model(Q)), ref(Q), atol=1e-7 * np.abs(Y).max())
 
 
@@ -32,7 +42,9 @@ def test_interpolates_its_constraints(solver, kernel, radius):
     if solver == "gmres" and kernel == "gaussian":
         radius = 0.2  # GMRES needs thousands of steps on the worse-conditioned radius 0.4
     model = jaxrbf.fit(X, Y, kernel=kernel, radius=radius, solver=solver)
-    tol = 1e-6 if solver == "gmres" else 1e-9  # GMRES stops at its tolerance; direct solves go further
+    tol = (
+        1e-6 if solver == "gmres" else 1e-9
+    )  # GMRES stops at its tolerance; direct solves go further
     np.testing.assert_allclose(np.asarray(model(X)), Y, atol=tol * np.abs(Y).max())
     assert float(model.residual) < tol
 
@@ -79,7 +91,9 @@ def test_smoothing_approximates():
     smooth = jaxrbf.fit(X, noisy, smoothing=1e-2)
     ref = RBFInterpolator(X, noisy, kernel="cubic", smoothing=1e-2)
     np.testing.assert_allclose(np.asarray(smooth(Q)), ref(Q), atol=1e-9)
-    big = jaxrbf.fit(7 * X, noisy, smoothing=1e-2)  # smoothing is in the input's units, like scipy's
+    big = jaxrbf.fit(
+        7 * X, noisy, smoothing=1e-2
+    )  # smoothing is in the input's units, like scipy's
     ref7 = RBFInterpolator(7 * X, noisy, kernel="cubic", smoothing=1e-2)
     np.testing.assert_allclose(np.asarray(big(7 * Q)), ref7(7 * Q), atol=1e-9)
     assert np.abs(np.asarray(smooth(X)) - noisy).max() > 1e-3  # no longer interpolates
@@ -93,6 +107,7 @@ def test_gmres_reports_iterations(capsys):
 
 
 # --- bad input: every message ---------------------------------------------------------------
+
 
 def test_error_values_shape():
     with pytest.raises(InputError, match=r"`values` must have shape \(300,\)"):

@@ -18,8 +18,20 @@ CUBE_V = np.array(
     dtype=float,
 ) * np.array([1.25, 0.5, 2.0]) + np.array([0.1, -3.0, 1e-3])
 CUBE_F = np.array(
-    [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
-     [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]],
+    [
+        [0, 2, 1],
+        [0, 3, 2],
+        [4, 5, 6],
+        [4, 6, 7],
+        [0, 1, 5],
+        [0, 5, 4],
+        [1, 2, 6],
+        [1, 6, 5],
+        [2, 3, 7],
+        [2, 7, 6],
+        [3, 0, 4],
+        [3, 4, 7],
+    ],
     dtype=np.int64,
 )
 
@@ -189,10 +201,18 @@ def test_write_polylines_csv_and_npz(tmp_path):
 @pytest.mark.skipif(not DATA.exists(), reason="the shared test meshes (../shared/data) are absent")
 def test_read_spot():
     m = io.read_mesh(DATA / "spot.obj")
-    n_v = sum(1 for line in open(DATA / "spot.obj") if line.startswith("v "))
-    n_f = sum(1 for line in open(DATA / "spot.obj") if line.startswith("f "))
-    assert m.vertices.shape == (n_v, 3) and m.faces.shape == (n_f, 3)
-    assert m.faces.min() == 0 and m.faces.max() == n_v - 1
+    lines = (DATA / "spot.obj").read_text().splitlines()
+    v = np.array([line.split()[1:4] for line in lines if line.startswith("v ")], dtype=float)
+    f = np.array(
+        [
+            [int(w.split("/")[0]) - 1 for w in line.split()[1:]]
+            for line in lines
+            if line.startswith("f ")
+        ]
+    )
+    # The vertices are the file's `v` lines, in order: no splitting along texture seams.
+    np.testing.assert_array_equal(m.vertices, v)
+    np.testing.assert_array_equal(m.faces, f)
     assert isinstance(io.read_input(DATA / "spot.obj"), io.Mesh)
 
 
@@ -221,9 +241,23 @@ def test_no_vertices_obj(tmp_path):
 
 def test_unknown_extension(tmp_path):
     (tmp_path / "x.foo").write_text("1 2 3\n")
-    with pytest.raises(InputError, match=r"'.*x\.foo' has an unknown format '\.foo'; expected one "
-                       r"of \.obj, \.ply"):
+    with pytest.raises(
+        InputError,
+        match=r"'.*x\.foo' has an unknown format '\.foo'; expected one "
+        r"of \.obj, \.ply",
+    ):
         io.read_input(tmp_path / "x.foo")
+
+
+def test_obj_keeps_unreferenced_vertices_and_splits_quads(tmp_path):
+    (tmp_path / "q.obj").write_text(
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 9 9 9\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f 1/1 2/2 3/3 4/4\n"
+    )
+    m = io.read_mesh(tmp_path / "q.obj")
+    assert m.vertices.shape == (5, 3) and m.vertices[4].tolist() == [9, 9, 9]
+    assert m.faces.shape == (2, 3)
+    assert {tuple(sorted(t)) for t in m.faces.tolist()} == {(0, 1, 2), (0, 2, 3)}
 
 
 def test_mesh_without_faces(tmp_path):
@@ -301,7 +335,9 @@ def test_wrong_columns(tmp_path):
 
 def test_wrong_npz_keys(tmp_path):
     np.savez(tmp_path / "x.npz", pts=np.zeros((3, 3)))
-    with pytest.raises(InputError, match=r"has arrays \['pts'\]; a point-cloud .npz needs `points`"):
+    with pytest.raises(
+        InputError, match=r"has arrays \['pts'\]; a point-cloud .npz needs `points`"
+    ):
         io.read_points(tmp_path / "x.npz")
     with pytest.raises(InputError, match=r"has arrays \['pts'\]; expected `points`"):
         io.read_input(tmp_path / "x.npz")
@@ -312,8 +348,14 @@ def test_wrong_npz_keys(tmp_path):
 
 def test_bad_face_index(tmp_path):
     (tmp_path / "x.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match=r"could not be read as OFF: .*face index"):
         io.read_mesh(tmp_path / "x.off")
+    np.savez(tmp_path / "x.npz", vertices=CUBE_V, faces=np.vstack([CUBE_F, [[0, 1, 8]]]))
+    with pytest.raises(InputError, match=r"has 1 face referring to vertices it does not hold"):
+        io.read_input(tmp_path / "x.npz")
+    (tmp_path / "x.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\nf 0 1 2\n")
+    with pytest.raises(InputError, match=r"could not be read as OBJ: line 6"):
+        io.read_mesh(tmp_path / "x.obj")
 
 
 def test_corrupt_off(tmp_path):
@@ -345,8 +387,12 @@ def test_as_points_valid():
 @pytest.mark.parametrize(
     "array, dims, pattern",
     [
-        (np.zeros(3), (2, 3), r"`points` must be a 2-dimensional array of shape \(n, d\), got "
-                              r"shape \(3,\)"),
+        (
+            np.zeros(3),
+            (2, 3),
+            r"`points` must be a 2-dimensional array of shape \(n, d\), got "
+            r"shape \(3,\)",
+        ),
         (np.zeros((4, 4)), (2, 3), r"must have 2 or 3 columns"),
         (np.zeros((4, 2)), (3,), r"must have 3 columns"),
         (np.zeros((0, 3)), (2, 3), "is empty"),
@@ -386,7 +432,7 @@ def test_unknown_output_extension_writes_nothing(tmp_path, writer, args):
 
 
 def test_bad_array_writes_nothing(tmp_path):
-    with pytest.raises(InputError, match="refers to vertex indices from 0 to 8"):
+    with pytest.raises(InputError, match="refers to vertex indices from 1 to 8"):
         io.write_mesh(tmp_path / "m.obj", CUBE_V, CUBE_F + 1)
     with pytest.raises(InputError, match="has 1 row with NaN"):
         io.write_points(tmp_path / "p.xyz", [[0, 0, np.nan]])

@@ -44,8 +44,15 @@ def test_wendland_is_compactly_supported():
 
 @pytest.mark.parametrize(
     "name, degree, pd",
-    [("linear", 0, False), ("cubic", 1, False), ("thin-plate", 1, False), ("gaussian", -1, True),
-     ("multiquadric", 0, False), ("inverse-multiquadric", -1, True), ("wendland", -1, True)],
+    [
+        ("linear", 0, False),
+        ("cubic", 1, False),
+        ("thin-plate", 1, False),
+        ("gaussian", -1, True),
+        ("multiquadric", 0, False),
+        ("inverse-multiquadric", -1, True),
+        ("wendland", -1, True),
+    ],
 )
 def test_metadata(name, degree, pd):
     assert KERNELS[name].min_degree == degree

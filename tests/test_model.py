@@ -31,7 +31,11 @@ def test_gradient_matches_finite_differences(which, request):
 
 
 def test_gradient_finite_at_centres(sphere_model):
-    g = np.asarray(sphere_model.gradient(np.asarray(sphere_model.centres[:10] * sphere_model.scale + sphere_model.shift)))
+    g = np.asarray(
+        sphere_model.gradient(
+            np.asarray(sphere_model.centres[:10] * sphere_model.scale + sphere_model.shift)
+        )
+    )
     assert np.all(np.isfinite(g))
 
 
@@ -52,9 +56,13 @@ def test_normals_point_outward(sphere_model):
 
 
 def test_shapes_and_chunking(sphere_model):
-    pts = np.random.default_rng(2).uniform(-1, 1, (3 * block_rows(sphere_model.centres.shape[0]) + 7, 3))
+    pts = np.random.default_rng(2).uniform(
+        -1, 1, (3 * block_rows(sphere_model.centres.shape[0]) + 7, 3)
+    )
     full = np.asarray(sphere_model(pts))
-    pieces = np.concatenate([np.asarray(sphere_model(pts[i : i + 50])) for i in range(0, len(pts), 50)])
+    pieces = np.concatenate(
+        [np.asarray(sphere_model(pts[i : i + 50])) for i in range(0, len(pts), 50)]
+    )
     np.testing.assert_allclose(full, pieces, rtol=1e-12, atol=1e-12)
     assert sphere_model(pts.reshape(-1, 1, 3)[:12].reshape(3, 4, 3)).shape == (3, 4)
     assert sphere_model(np.zeros(3)).shape == ()

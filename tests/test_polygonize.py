@@ -19,8 +19,9 @@ def euler(mesh):
 
 
 def test_analytic_sphere_any_callable():
-    mesh = jaxrbf.polygonize(lambda p: jnp.linalg.norm(p, axis=-1) - 1.0, resolution=40,
-                             bounds=((-1.3,) * 3, (1.3,) * 3))
+    mesh = jaxrbf.polygonize(
+        lambda p: jnp.linalg.norm(p, axis=-1) - 1.0, resolution=40, bounds=((-1.3,) * 3, (1.3,) * 3)
+    )
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 5e-3
     assert signed_volume(mesh) == pytest.approx(4 / 3 * np.pi, rel=0.02)  # > 0: faces outward
     assert euler(mesh) == 2

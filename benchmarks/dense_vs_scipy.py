@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -88,7 +89,8 @@ def _worker_jaxrbf(data: dict, repeats: int) -> tuple[dict, np.ndarray]:
     base = current_rss_mib()
 
     def fit():
-        model = jaxrbf.fit(pts, vals, kernel=KERNEL, degree=DEGREE)
+        solver = os.environ.get("JAXRBF_BENCH_SOLVER", "lu")
+        model = jaxrbf.fit(pts, vals, kernel=KERNEL, degree=DEGREE, solver=solver)
         return jax.block_until_ready(model)
 
     model, t_cold = timed(fit)
@@ -380,6 +382,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--repeats", type=int, default=2, help="timed repetitions; the best is reported (default 2)"
     )
+    p.add_argument(
+        "--solver", choices=["lu", "cholesky"], default="lu", help="jaxrbf's solver (default lu)"
+    )
     p.add_argument("--threads", type=int, default=2, help="BLAS/OpenMP threads (default 2)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed (default 0)")
     p.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers to PATH")
@@ -400,6 +405,8 @@ def main(argv=None) -> None:
         worker_main(args)
         return
     mesh = resolve_mesh(args.mesh)
+    os.environ["JAXRBF_BENCH_SOLVER"] = args.solver  # read by the jaxrbf worker
+    print(f"jaxrbf solver: {args.solver}", flush=True)
     t0 = time.perf_counter()
     results = []
     with tempfile.TemporaryDirectory(prefix="jaxrbf-bench-") as tmp:

@@ -82,7 +82,7 @@ def fit(
       the kernel matrix is applied block by block and never stored).
     - `radius`: the kernel's length scale in the points' units (Gaussian, multiquadrics, Wendland's
       radius of support); not used by the others.
-    - `rtol`, `max_steps`: tolerance and iteration cap of the iterative solvers.
+    - `rtol`, `max_steps`: tolerance and iteration cap of GMRES (default min(20 n, 5000)).
     - `verbose`: report the solve and its residual on stderr.
 
     **Returns:** an `RBFModel`. Its `residual` is the relative residual of the solve.
@@ -172,7 +172,7 @@ def fit(
     steps = int(sol.steps)
     finite = bool(jnp.all(jnp.isfinite(sol.weights)) & jnp.all(jnp.isfinite(sol.coeffs)))
     if verbose:
-        extra = f", {steps} iterations" if solver == "gmres" else ""
+        extra = f", {steps} GMRES restart cycles of <= 100 iterations" if solver == "gmres" else ""
         log(f"solved in {time.perf_counter() - t0:.2f} s; relative residual {residual:.2e}{extra}")
     if not finite or not np.isfinite(residual):
         raise SolveError(
@@ -182,7 +182,7 @@ def fit(
         )
     if residual > RESIDUAL_TOL:
         why = (
-            f"{solver} stopped after {steps} iterations without converging"
+            f"{solver} stopped after {steps} restart cycles without converging"
             if solver == "gmres" and not bool(sol.ok)
             else "the system is nearly singular"
         )

@@ -110,22 +110,15 @@ class RBFModel(eqx.Module):
             )
         return x.reshape(-1, self.dim).astype(self.centres.dtype), x.shape[:-1]
 
-    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, ...]:
+    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
         """f at points `x` of shape (..., d); returns shape (...)."""
         flat, lead = self._flat(x)
-        rows = block_rows(self.centres.shape[0])
-        out = map_blocks(lambda b: self._eval_normalised(self.normalise(b)), flat, rows)
-        return out.reshape(lead)
+        return _values(self, flat).reshape(lead)
 
     def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
         flat, lead = self._flat(x)
-        rows = block_rows(self.centres.shape[0])
-
-        def block(b):
-            return jax.grad(lambda y: jnp.sum(self._eval_normalised(self.normalise(y))))(b)
-
-        return map_blocks(block, flat, rows).reshape(lead + (self.dim,))
+        return _gradients(self, flat).reshape(lead + (self.dim,))
 
     def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """The unit normal grad f / |grad f| (outward: f grows outside)."""
@@ -137,3 +130,20 @@ class RBFModel(eqx.Module):
         """Bounding box (lo, hi) of the centres in the user's coordinates."""
         world = self.centres * self.scale + self.shift
         return world.min(axis=0), world.max(axis=0)
+
+
+# Compiled once per (model structure, number of points): repeated calls do not retrace.
+@eqx.filter_jit
+def _values(model: RBFModel, flat: Array) -> Array:
+    rows = block_rows(model.centres.shape[0])
+    return map_blocks(lambda b: model._eval_normalised(model.normalise(b)), flat, rows)
+
+
+@eqx.filter_jit
+def _gradients(model: RBFModel, flat: Array) -> Array:
+    rows = block_rows(model.centres.shape[0])
+
+    def block(b):
+        return jax.grad(lambda y: jnp.sum(model._eval_normalised(model.normalise(y))))(b)
+
+    return map_blocks(block, flat, rows)

@@ -70,10 +70,10 @@ class AbstractKernel(eqx.Module):
     #: scales with the coordinates instead). Used to express `smoothing` in the input's units.
     homogeneity: ClassVar[int] = 0
 
-    def from_r2(self, r2: Float[Array, ...]) -> Float[Array, ...]:
+    def from_r2(self, r2: Float[Array, "..."]) -> Float[Array, "..."]:
         raise NotImplementedError
 
-    def __call__(self, r: Float[ArrayLike, ...]) -> Float[Array, ...]:
+    def __call__(self, r: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
         """phi(r) for distances `r` (not squared)."""
         r = jnp.asarray(r)
         return self.from_r2(r * r)

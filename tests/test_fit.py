@@ -184,3 +184,9 @@ def test_singular_system_raises():
     # a huge Gaussian radius makes the kernel matrix numerically singular
     with pytest.raises(SolveError, match="does not reproduce its constraints|singular"):
         jaxrbf.fit(X, Y, kernel="gaussian", radius=1e4, degree=-1)
+
+
+def test_gmres_iteration_cap_is_in_iterations():
+    # 5 iterations cannot solve a 300-point cubic system: a clear error, not a silent bad fit
+    with pytest.raises(SolveError, match="gmres stopped after 1 restart cycles"):
+        jaxrbf.fit(X, Y, solver="gmres", max_steps=5)

@@ -19,6 +19,7 @@ from ._prepare import (
     sample_faces,
     vertex_normals,
 )
+from .io import as_points
 
 #: Default offset d as a fraction of the bounding-box diagonal.
 DEFAULT_OFFSET = 0.01
@@ -27,28 +28,8 @@ MERGE_TOL = 1e-6
 _SHRINK_STEPS = 8
 
 
-def _as_array(a, name: str, dims=(2, 3)) -> np.ndarray:
-    a = np.asarray(a, dtype=float)
-    if a.ndim != 2:
-        raise InputError(
-            f"`{name}` must be a 2-dimensional array of shape (n, d), got shape {a.shape}"
-        )
-    if a.shape[1] not in dims:
-        raise InputError(
-            f"`{name}` must have {' or '.join(map(str, dims))} columns, got {a.shape[1]}"
-        )
-    if a.shape[0] == 0:
-        raise InputError(f"`{name}` is empty: it has no rows")
-    bad = ~np.all(np.isfinite(a), axis=1)
-    if bad.any():
-        raise InputError(
-            f"`{name}` has {int(bad.sum())} rows with NaN or infinite values (first: row {int(np.argmax(bad))})"
-        )
-    return a
-
-
 def _unit_normals(normals: np.ndarray, n: int, dim: int) -> np.ndarray:
-    normals = _as_array(normals, "normals", (dim,))
+    normals = as_points(normals, "normals", (dim,))
     if len(normals) != n:
         raise InputError(
             f"`normals` has {len(normals)} rows but `points` has {n}; give one normal per point"
@@ -124,7 +105,7 @@ class Constraints(eqx.Module):
         **Returns:** `Constraints` with the n on-surface points first, then the outside points
         (value +d), then the inside points (value -d).
         """
-        p = _as_array(points, "points")
+        p = as_points(points, "points")
         nrm = _unit_normals(normals, len(p), p.shape[1])
         diag = diagonal(p)
         if not diag > 0:
@@ -185,7 +166,7 @@ class Constraints(eqx.Module):
           area-weighted vertex normals, subsampled at random to `points` if given.
         - `seed`: for the random sampling.
         """
-        v = _as_array(vertices, "vertices", (3,))
+        v = as_points(vertices, "vertices", (3,))
         f = np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
             raise InputError(
@@ -233,7 +214,7 @@ class Constraints(eqx.Module):
         A closed polyline's normals point out of the region it encloses; an open polyline's point
         to the right of its walking direction.
         """
-        v = _as_array(vertices, "vertices", (2,))
+        v = as_points(vertices, "vertices", (2,))
         if closed is None:
             closed = len(v) > 2 and bool(np.all(v[0] == v[-1]))
         if closed and len(v) > 1 and np.all(v[0] == v[-1]):

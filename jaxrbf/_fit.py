@@ -8,11 +8,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._constraints import Constraints, _as_array, log
+from ._constraints import Constraints, log
 from ._errors import InputError, SolveError
 from ._model import RBFModel, n_poly
 from ._prepare import find_duplicates, unit_box_transform
 from ._solve import SOLVERS, solve_system
+from .io import as_points
 from .kernels import AbstractKernel, make_kernel
 
 #: Dense solves at or above this many unknowns crash OpenBLAS's multithreaded LU on the reference
@@ -103,7 +104,7 @@ def fit(
         points, values = points.points, points.values
     elif values is None:
         raise InputError("`values` is missing: give the value f must take at each point")
-    x = _as_array(points, "points", dims=range(1, 100))
+    x = as_points(points, "points", dims=tuple(range(1, 33)))
     h = np.asarray(values, dtype=float)
     if h.ndim != 1 or len(h) != len(x):
         raise InputError(f"`values` must have shape ({len(x)},) to match `points`, got {h.shape}")

@@ -122,7 +122,7 @@ def test_error_points_not_2d():
 def test_error_nan_points():
     bad = X.copy()
     bad[5, 1] = np.nan
-    with pytest.raises(InputError, match="1 rows with NaN or infinite values"):
+    with pytest.raises(InputError, match="1 row with NaN or infinite values"):
         jaxrbf.fit(bad, Y)
 
 

@@ -140,7 +140,8 @@ def fit_surface(
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
     r = None
     if cls.has_radius and not isinstance(kernel, AbstractKernel):
-        r = (DEFAULT_RADIUS if radius is None else float(radius)) * diagonal(np.asarray(c.points))
+        surface = np.asarray(c.points[: c.n_surface])
+        r = (DEFAULT_RADIUS if radius is None else float(radius)) * diagonal(surface)
     elif radius is not None:
         raise InputError(f"the {cls.name} kernel has no radius; leave --radius unset")
     return fit(

@@ -12,6 +12,7 @@ from ._constraints import Constraints, log
 from ._errors import InputError, SolveError
 from ._model import RBFModel, n_poly
 from ._prepare import find_duplicates, unit_box_transform
+from ._schwarz import decompose
 from ._solve import SOLVERS, solve_system
 from .io import as_points
 from .kernels import AbstractKernel, make_kernel
@@ -19,6 +20,8 @@ from .kernels import AbstractKernel, make_kernel
 #: Dense solves at or above this many unknowns crash OpenBLAS's multithreaded LU on the reference
 #: machine (a segmentation fault, which cannot be caught; see DESIGN.md), so they are refused.
 DENSE_LIMIT = 21_000
+#: Stopping tolerances of the iterative solvers (see `fit`).
+DEFAULT_RTOL = {"cg": 1e-11, "gmres": 1e-8}
 #: A fit whose relative residual max|B x - rhs| / max|rhs| exceeds this is an error.
 RESIDUAL_TOL = 1e-6
 
@@ -40,15 +43,22 @@ def _check_size(n: int, solver: str) -> None:
     if n >= DENSE_LIMIT:
         raise InputError(
             f"{n:,} unknowns is too many for the dense {solver} solver (limit {DENSE_LIMIT:,}: larger "
-            "dense LAPACK solves crash OpenBLAS); use solver='gmres' (matrix-free) or fewer points"
+            "dense LAPACK solves crash OpenBLAS); use solver='cg' or 'gmres' (iterative) or fewer "
+            "points"
         )
     need = 3 * 8 * n * n
     avail = _available_memory()
     if avail is not None and need > avail:
         raise InputError(
             f"the dense {solver} solve of {n:,} unknowns needs about {need / 2**30:.1f} GiB but "
-            f"{avail / 2**30:.1f} GiB is available; use solver='gmres' or fewer points"
+            f"{avail / 2**30:.1f} GiB is available; use solver='cg' or 'gmres' or fewer points"
         )
+
+
+def _store_matrix(n: int) -> bool:
+    """Whether CG may keep the n x n null-space matrix (else it applies it block by block)."""
+    avail = _available_memory()
+    return n < DENSE_LIMIT and (avail is None or 2 * 8 * n * n < avail)
 
 
 def fit(
@@ -60,7 +70,7 @@ def fit(
     smoothing: float = 0.0,
     solver: str = "lu",
     radius: float | None = None,
-    rtol: float = 1e-11,
+    rtol: float | None = None,
     max_steps: int | None = None,
     verbose: bool = False,
 ) -> RBFModel:
@@ -79,11 +89,16 @@ def fit(
     - `degree`: polynomial degree: 1 (the paper's eq. 6), 0 or -1 (none); at least the kernel's
       `min_degree`.
     - `smoothing`: lambda >= 0 added to the diagonal (A + lambda I); 0 interpolates.
-    - `solver`: `lu` (the paper's), `cholesky` (null-space form), `gmres` (matrix-free:
-      the kernel matrix is applied block by block and never stored).
+    - `solver`: `lu` (the paper's), `cholesky` (null-space form), `cg` (conjugate gradients on
+      the null-space form, preconditioned by overlapping local solves and a coarse solve: the
+      fastest for a few thousand points and more), `gmres` (matrix-free: the kernel matrix is
+      applied block by block and never stored; same preconditioner).
     - `radius`: the kernel's length scale in the points' units (Gaussian, multiquadrics, Wendland's
       radius of support); not used by the others.
-    - `rtol`, `max_steps`: tolerance and iteration cap of GMRES (default min(20 n, 5000)).
+    - `rtol`, `max_steps`: tolerance and iteration cap of CG and GMRES (default min(20 n, 5000)
+      iterations). Both stop when max|residual| <= rtol max|values|: CG on its recursive residual
+      (default rtol 1e-11), GMRES on the true one, which rounding keeps near 1e-9 for large
+      polyharmonic systems (default rtol 1e-8).
     - `verbose`: report the solve and its residual on stderr.
 
     **Returns:** an `RBFModel`. Its `residual` is the relative residual of the solve.
@@ -159,6 +174,9 @@ def fit(
     t0 = time.perf_counter()
     if verbose:
         log(f"solving {n + k:,} unknowns: {kern.name} kernel, degree {degree}, {solver}, float64")
+    decomposition = None
+    if solver in ("cg", "gmres"):
+        decomposition = tuple(jnp.asarray(a) for a in decompose(xn))
     sol = solve_system(
         kern,
         jnp.asarray(xn),
@@ -166,14 +184,19 @@ def fit(
         jnp.asarray(smoothing),
         degree,
         solver,
-        rtol,
+        DEFAULT_RTOL.get(solver, 1e-11) if rtol is None else rtol,
         max_steps,
+        decomposition,
+        solver == "cg" and _store_matrix(n + k),
     )
     residual = float(sol.residual)
     steps = int(sol.steps)
     finite = bool(jnp.all(jnp.isfinite(sol.weights)) & jnp.all(jnp.isfinite(sol.coeffs)))
     if verbose:
-        extra = f", {steps} GMRES restart cycles of <= 100 iterations" if solver == "gmres" else ""
+        extra = {
+            "gmres": f", {steps} GMRES restart cycles of <= 100 iterations",
+            "cg": f", {steps} CG iterations",
+        }.get(solver, "")
         log(f"solved in {time.perf_counter() - t0:.2f} s; relative residual {residual:.2e}{extra}")
     if not finite or not np.isfinite(residual):
         raise SolveError(
@@ -182,9 +205,10 @@ def fit(
             "try smoothing > 0 or another kernel"
         )
     if residual > RESIDUAL_TOL:
+        unit = "restart cycles" if solver == "gmres" else "iterations"
         why = (
-            f"{solver} stopped after {steps} restart cycles without converging"
-            if solver == "gmres" and not bool(sol.ok)
+            f"{solver} stopped after {steps} {unit} without converging"
+            if solver in ("cg", "gmres") and not bool(sol.ok)
             else "the system is nearly singular"
         )
         raise SolveError(

@@ -1,4 +1,5 @@
-"""Solvers for the saddle-point system: LU, Cholesky (null-space form) and matrix-free GMRES.
+"""Solvers for the saddle-point system: LU, Cholesky (null-space form), and preconditioned CG and
+GMRES.
 
 Precision: every solve runs in float64. The saddle systems of r^3 and r^2 log r kernels are badly
 conditioned (the condition number grows with the number and density of points), and float32 loses
@@ -12,6 +13,18 @@ definite on the null space of P^T. Let P = Q1 R (thin QR) and Pi = I - Q1 Q1^T. 
 is symmetric positive definite on all of R^n, and C w = Pi h gives exactly the w of the saddle system
 (w lies in null(P^T), Pi (A + s I) w = Pi h); the polynomial follows from R a = Q1^T (h - (A + s I) w).
 Forming C costs O(n^2 k), not the O(n^3) of an explicit null-space basis.
+
+Iterative solvers (CG on the stored C, GMRES matrix-free) are preconditioned by two-level additive
+Schwarz (`jaxrbf._schwarz`): for overlapping subdomains s (and a coarse subset of the centres)
+
+    M^-1 v = sum_s R_s^T W_s R_s v + Q1 Q1^T v
+
+where W_s is the top-left block of the inverse of the subdomain's own saddle matrix
+[[A_s + s I, P_s], [P_s^T, 0]] (its local RBF interpolation, with its own polynomial). W_s maps
+local data to local weights that satisfy P_s^T w = 0, so every term lies in null(P^T), and C acts as
+the identity on span(Q1), hence the last term. M^-1 is symmetric positive semi-definite, as CG
+requires. The local inverses are formed once, batched over subdomains, so applying M^-1 costs a few
+small matrix-vector products.
 """
 
 from __future__ import annotations
@@ -22,13 +35,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
+from jax import lax
 from jaxtyping import Array
 
 from ._model import poly_basis
 from ._system import kernel_matrix, kernel_matvec, saddle_matrix, saddle_matvec
 from .kernels import AbstractKernel
 
-SOLVERS = ("lu", "cholesky", "gmres")
+SOLVERS = ("lu", "cholesky", "cg", "gmres")
 
 
 class Solution(NamedTuple):
@@ -36,7 +50,7 @@ class Solution(NamedTuple):
     coeffs: Array
     residual: Array  # max |B x - rhs| / max |rhs|
     ok: Array  # lineax reported success
-    steps: Array  # restart cycles of GMRES (up to 100 iterations each; 0 for direct solvers)
+    steps: Array  # CG iterations or GMRES restart cycles (0 for the direct solvers)
 
 
 def _projector(p: Array) -> tuple[Array, Array]:
@@ -50,10 +64,129 @@ def _poly_from_residual(q1, r, h, aw):
     return jax.scipy.linalg.solve_triangular(r, q1.T @ (h - aw), lower=False)
 
 
+def _null_space_matrix(a_mat: Array, q1: Array) -> Array:
+    """C = Pi A Pi + Q1 Q1^T for symmetric A, as A plus a rank-2k update written element by element.
+
+    With M = A Q1 and T = Q1^T M, C = A - M Q1^T - Q1 M^T + Q1 (T + I) Q1^T = A + U Q1^T + Q1 U^T
+    where U = Q1 (T + I) / 2 - M (T symmetrised). The update is a sum of k outer products of
+    vectors, which XLA fuses into one elementwise pass that can overwrite A in place: no n x n
+    temporaries besides A itself. Each term u_i q_j + q_i u_j is exactly symmetric in i, j."""
+    m = a_mat @ q1
+    t = q1.T @ m
+    t = 0.5 * (t + t.T) + jnp.eye(q1.shape[1], dtype=q1.dtype)
+    u = 0.5 * (q1 @ t) - m
+    c_mat = a_mat
+    for col in range(q1.shape[1]):
+        c_mat = c_mat + (u[:, col, None] * q1[None, :, col] + q1[:, col, None] * u[None, :, col])
+    return c_mat
+
+
 def _residual(kernel, centres, degree, smoothing, h, w, a) -> Array:
     top, bottom = saddle_matvec(kernel, centres, degree, smoothing, w, a)
     err = jnp.maximum(jnp.max(jnp.abs(top - h)), jnp.max(jnp.abs(bottom), initial=0.0))
     return err / jnp.maximum(jnp.max(jnp.abs(h)), jnp.finfo(h.dtype).tiny)
+
+
+class _PCG(lx.AbstractLinearSolver):
+    """Preconditioned conjugate gradients that stops on max|r| <= tol * max|b|.
+
+    lineax's `CG` scales its tolerance element by element (|r_i| against rtol |b_i|), which never
+    converges where b has (near-)zero entries, as the on-surface values here do, and it also asks
+    for small steps in the solution, which a badly conditioned system need not give. Written as a
+    lineax solver, so `linear_solve` still differentiates through it (the operator is symmetric,
+    so its transpose is itself).
+
+    The residual is the recursive one, never replaced by b - C y: with weights of 1e8 and more, the
+    explicit residual carries a rounding error near 1e-9 relative, and putting it back into the
+    recurrence breaks the conjugacy (measured: the residual stalls at 1e-6, then grows), while
+    the recursive one keeps converging and the true residual settles at that rounding floor.
+    The caller checks the true residual."""
+
+    tol: float
+    max_steps: int
+
+    def init(self, operator, options):
+        return operator
+
+    def compute(self, state, vector, options):
+        op = state
+        pre = options.get("preconditioner")
+        apply_pre = (lambda r: r) if pre is None else pre.mv
+        b = vector
+        target = self.tol * jnp.max(jnp.abs(b))
+
+        def cond(c):
+            _, r, _, gamma, step = c
+            return (step < self.max_steps) & (jnp.max(jnp.abs(r)) > target) & (gamma > 0)
+
+        def body(c):
+            y, r, p, gamma, step = c
+            ap = op.mv(p)
+            alpha = gamma / jnp.vdot(p, ap)
+            z = apply_pre(r - alpha * ap)
+            gamma_new = jnp.vdot(r - alpha * ap, z)
+            return y + alpha * p, r - alpha * ap, z + (gamma_new / gamma) * p, gamma_new, step + 1
+
+        z0 = apply_pre(b)
+        init = (jnp.zeros_like(b), b, z0, jnp.vdot(b, z0), jnp.array(0))
+        y, r, _, _, steps = lax.while_loop(cond, body, init)
+        done = jnp.max(jnp.abs(r)) <= target
+        result = lx.RESULTS.where(done, lx.RESULTS.successful, lx.RESULTS.max_steps_reached)
+        return y, result, {"num_steps": steps}
+
+    def transpose(self, state, options):
+        out = dict(options)
+        if "preconditioner" in options:
+            out["preconditioner"] = options["preconditioner"].transpose()
+        return state.transpose(), out
+
+    def conj(self, state, options):
+        return state, options
+
+    def assume_full_rank(self):
+        return True
+
+
+def _local_inverses(kernel, xs: Array, mask: Array, degree: int, smoothing) -> Array:
+    """W_s for every subdomain: xs (s, m, d) padded centres, mask (s, m). Returns (s, m, m)."""
+
+    def one(x, keep):
+        m = x.shape[0]
+        both = keep[:, None] & keep[None, :]
+        a = jnp.where(both, kernel_matrix(kernel, x, smoothing), 0.0) + jnp.diag(~keep).astype(
+            x.dtype
+        )
+        # The local polynomial on centred, rescaled coordinates: same span, better conditioned.
+        w = keep.astype(x.dtype)[:, None]
+        mid = jnp.sum(x * w, axis=0) / jnp.maximum(jnp.sum(w), 1.0)
+        ext = jnp.max(jnp.where(keep[:, None], jnp.abs(x - mid), 0.0))
+        p = poly_basis((x - mid) / jnp.maximum(ext, 1e-300), degree) * w
+        k = p.shape[1]
+        b = jnp.block([[a, p], [p.T, jnp.zeros((k, k), x.dtype)]]) if k else a
+        inv = jnp.linalg.inv(b)[:m, :m]
+        return 0.5 * (inv + inv.T) * both
+
+    return jax.vmap(one)(xs, mask)
+
+
+def schwarz_preconditioner(kernel, centres, degree, smoothing, decomposition, q1):
+    """The two-level additive Schwarz M^-1 of the module docstring, as a function of v."""
+    idx, mask, coarse = decomposition
+    w_loc = _local_inverses(kernel, centres[idx], mask, degree, smoothing)
+    has_coarse = coarse.shape[0] > 0
+    if has_coarse:
+        w_c = _local_inverses(
+            kernel, centres[coarse][None], jnp.ones((1, coarse.shape[0]), bool), degree, smoothing
+        )[0]
+
+    def apply(v):
+        ys = jnp.einsum("smk,sk->sm", w_loc, v[idx] * mask)
+        out = jnp.zeros_like(v).at[idx].add(ys)
+        if has_coarse:
+            out = out.at[coarse].add(w_c @ v[coarse])
+        return out + q1 @ (q1.T @ v)
+
+    return apply
 
 
 @eqx.filter_jit
@@ -66,13 +199,20 @@ def solve_system(
     solver: str,
     rtol: float = 1e-11,
     max_steps: int | None = None,
+    decomposition: tuple[Array, Array, Array] | None = None,
+    stored: bool = True,
 ) -> Solution:
     """Solve eq. 6 for the weights and polynomial coefficients.
 
     **Arguments:**
     - `kernel`, `centres` (n, d) normalised, `values` (n,), `smoothing` (scalar >= 0).
     - `degree`: -1, 0 or 1. `solver`: one of `SOLVERS`.
-    - `rtol`, `max_steps`: for GMRES (`max_steps` in iterations; default min(20 n, 5000)).
+    - `rtol`, `max_steps`: for CG and GMRES (`max_steps` in iterations; default
+      min(20 n, 5000)). CG stops on max|r| <= rtol max|b|; GMRES on lineax's criterion.
+    - `decomposition`: (idx, mask, coarse) from `jaxrbf._schwarz.decompose`, for the Schwarz
+      preconditioner of CG and GMRES; None solves without one.
+    - `stored`: CG keeps the n x n null-space matrix (fast matvecs, O(n^2) memory); False applies
+      it block by block, as GMRES always does.
 
     **Returns:** a `Solution`; the caller checks `ok` and `residual`.
     """
@@ -95,12 +235,7 @@ def solve_system(
 
         if solver == "cholesky":
             a_mat = kernel_matrix(kernel, centres, smoothing)
-            if k:
-                # C = Pi A Pi + Q1 Q1^T, with the rank-k updates fused into the n x n passes
-                left = a_mat - q1 @ (q1.T @ a_mat)
-                c_mat = left - (left @ q1) @ q1.T + q1 @ q1.T
-            else:
-                c_mat = a_mat
+            c_mat = _null_space_matrix(a_mat, q1) if k else a_mat
             op = lx.MatrixLinearOperator(c_mat, lx.positive_semidefinite_tag)
             chol = lx.Cholesky()
             state = chol.init(op, {})
@@ -112,22 +247,48 @@ def solve_system(
             fix = lx.linear_solve(op, resid, chol, state=state, throw=False)
             w, result = w + project(fix.value), fix.result
         else:
+            if solver == "cg" and stored:
+                a_mat = kernel_matrix(kernel, centres, smoothing)
+                c_mat = _null_space_matrix(a_mat, q1) if k else a_mat
+                op = lx.MatrixLinearOperator(c_mat, lx.positive_semidefinite_tag)
+            else:
 
-            def c_apply(v):
-                av = kernel_matvec(kernel, centres, project(v), smoothing)
-                return project(av) + q1 @ (q1.T @ v)
+                def c_apply(v):
+                    av = kernel_matvec(kernel, centres, project(v), smoothing)
+                    return project(av) + q1 @ (q1.T @ v)
 
-            op = lx.FunctionLinearOperator(
-                c_apply, jax.ShapeDtypeStruct((n,), h.dtype), lx.positive_semidefinite_tag
-            )
-            # lineax counts GMRES steps in restart cycles; `max_steps` is in iterations.
+                op = lx.FunctionLinearOperator(
+                    c_apply, jax.ShapeDtypeStruct((n,), h.dtype), lx.positive_semidefinite_tag
+                )
+            pre = None
+            if decomposition is not None:
+                pre = schwarz_preconditioner(kernel, centres, degree, smoothing, decomposition, q1)
+            vec = jax.ShapeDtypeStruct((n,), h.dtype)
             cap = max_steps if max_steps is not None else min(20 * n, 5000)
-            restart = max(1, min(n, 100, cap))
-            # CG was tried and stalls on these ill-conditioned systems; restarted GMRES does not.
-            it = lx.GMRES(rtol=rtol, atol=0.0, max_steps=-(-cap // restart), restart=restart)
-            sol = lx.linear_solve(op, project(h), it, throw=False)
+            if solver == "cg":
+                options = {}
+                if pre is not None:
+                    options["preconditioner"] = lx.FunctionLinearOperator(
+                        pre, vec, lx.positive_semidefinite_tag
+                    )
+                sol = lx.linear_solve(
+                    op, project(h), _PCG(tol=rtol, max_steps=cap), options=options, throw=False
+                )
+                w = project(sol.value)
+            else:
+                # Right preconditioning, C M u = b with w = M u: GMRES then measures the true
+                # residual, and u ~ b in size, so one absolute tolerance (rtol max|b|) suits both
+                # of lineax's checks (on the residual and on the step in u); its element-wise
+                # relative test never passes where b has near-zero entries.
+                right = op if pre is None else lx.FunctionLinearOperator(lambda u: op.mv(pre(u)), vec)
+                # lineax counts GMRES steps in restart cycles; `max_steps` is in iterations.
+                restart = max(1, min(n, 100, cap))
+                atol = rtol * jnp.max(jnp.abs(h))
+                it = lx.GMRES(rtol=0.0, atol=atol, max_steps=-(-cap // restart), restart=restart)
+                sol = lx.linear_solve(right, project(h), it, throw=False)
+                w = project(sol.value if pre is None else pre(sol.value))
             steps = sol.stats.get("num_steps", jnp.array(0))
-            w, result = sol.value, sol.result
+            result = sol.result
         a = _poly_from_residual(q1, r, h, kernel_matvec(kernel, centres, w, smoothing))
         ok = result == lx.RESULTS.successful
     res = _residual(kernel, centres, degree, smoothing, h, w, a)

@@ -44,7 +44,11 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--smoothing", type=float, default=0.0, help="lambda added to the diagonal (default 0)"
     )
-    g.add_argument("--solver", choices=SOLVERS, default="lu")
+    g.add_argument(
+        "--solver",
+        choices=SOLVERS,
+        help="linear solver (default cg; lu for the gaussian kernel)",
+    )
     g.add_argument(
         "--degree", type=int, choices=(-1, 0, 1), default=1, help="polynomial degree (default 1)"
     )

@@ -280,7 +280,9 @@ def solve_system(
                 # residual, and u ~ b in size, so one absolute tolerance (rtol max|b|) suits both
                 # of lineax's checks (on the residual and on the step in u); its element-wise
                 # relative test never passes where b has near-zero entries.
-                right = op if pre is None else lx.FunctionLinearOperator(lambda u: op.mv(pre(u)), vec)
+                right = (
+                    op if pre is None else lx.FunctionLinearOperator(lambda u: op.mv(pre(u)), vec)
+                )
                 # lineax counts GMRES steps in restart cycles; `max_steps` is in iterations.
                 restart = max(1, min(n, 100, cap))
                 atol = rtol * jnp.max(jnp.abs(h))

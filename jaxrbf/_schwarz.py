@@ -26,6 +26,8 @@ from scipy.spatial import cKDTree
 LEAF = 500
 OVERLAP = 20
 COARSE_FRACTION = 1 / 8
+#: The coarse solve is one dense (c + k)^2 inverse; beyond this size it would cost more than it saves.
+COARSE_MAX = 2000
 
 
 class Decomposition(NamedTuple):
@@ -71,7 +73,7 @@ def decompose(
         idx[i, : len(s)] = s
         mask[i, : len(s)] = True
     if coarse is None:
-        coarse = int(COARSE_FRACTION * n)
+        coarse = min(int(COARSE_FRACTION * n), COARSE_MAX)
     if parts == 1 or coarse < 2:
         cidx = np.zeros((0,), dtype=np.int32)
     else:

@@ -126,3 +126,19 @@ def test_cg_reports_iterations(capsys):
 def test_cg_iteration_cap():
     with pytest.raises(SolveError, match="cg stopped after 2 iterations"):
         jaxrbf.fit(_torus_constraints(), solver="cg", max_steps=2)
+
+
+def test_matrix_free_cg_matches_stored():
+    # above the dense limit CG applies C block by block instead of storing it: same answer
+    c = _torus_constraints()
+    x = jnp.asarray(c.points)
+    x = (x - x.min(0)) / jnp.max(x.max(0) - x.min(0))
+    h = jnp.asarray(c.values)
+    kernel = make_kernel("cubic")
+    d = tuple(jnp.asarray(a) for a in decompose(np.asarray(x)))
+    args = (kernel, x, h, jnp.asarray(0.0), 1, "cg", 1e-11, 500, d)
+    stored = solve_system(*args, stored=True)
+    free = solve_system(*args, stored=False)
+    assert bool(free.ok) and float(free.residual) < 1e-7
+    w_free, w_stored = np.asarray(free.weights), np.asarray(stored.weights)
+    np.testing.assert_allclose(w_free, w_stored, atol=1e-5 * np.abs(w_stored).max())

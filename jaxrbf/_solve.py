@@ -5,7 +5,7 @@ Precision: every solve runs in float64. The saddle systems of r^3 and r^2 log r 
 conditioned (the condition number grows with the number and density of points), and float32 loses
 the constraints entirely beyond a few hundred points.
 
-Null-space form (Cholesky, GMRES). With the sign conventions of `jaxrbf.kernels`, A is positive
+Null-space form (Cholesky, CG, GMRES). With the sign conventions of `jaxrbf.kernels`, A is positive
 definite on the null space of P^T. Let P = Q1 R (thin QR) and Pi = I - Q1 Q1^T. Then
 
     C = Pi (A + s I) Pi + Q1 Q1^T
@@ -233,10 +233,13 @@ def solve_system(
         def project(v):
             return v - q1 @ (q1.T @ v)
 
-        if solver == "cholesky":
+        def stored_operator():
             a_mat = kernel_matrix(kernel, centres, smoothing)
             c_mat = _null_space_matrix(a_mat, q1) if k else a_mat
-            op = lx.MatrixLinearOperator(c_mat, lx.positive_semidefinite_tag)
+            return lx.MatrixLinearOperator(c_mat, lx.positive_semidefinite_tag)
+
+        if solver == "cholesky":
+            op = stored_operator()
             chol = lx.Cholesky()
             state = chol.init(op, {})
             sol = lx.linear_solve(op, project(h), chol, state=state, throw=False)
@@ -248,9 +251,7 @@ def solve_system(
             w, result = w + project(fix.value), fix.result
         else:
             if solver == "cg" and stored:
-                a_mat = kernel_matrix(kernel, centres, smoothing)
-                c_mat = _null_space_matrix(a_mat, q1) if k else a_mat
-                op = lx.MatrixLinearOperator(c_mat, lx.positive_semidefinite_tag)
+                op = stored_operator()
             else:
 
                 def c_apply(v):

@@ -25,6 +25,15 @@ def _torus_constraints():
     return jaxrbf.Constraints.from_points(pts, nrm, offset=0.03)
 
 
+def _torus_system(**split):
+    """Arguments of `solve_system` for the torus in the unit box (cubic kernel, degree 1)."""
+    c = _torus_constraints()
+    x = jnp.asarray(c.points)
+    x = (x - x.min(0)) / jnp.max(x.max(0) - x.min(0))
+    d = tuple(jnp.asarray(a) for a in decompose(np.asarray(x), **split))
+    return make_kernel("cubic"), x, jnp.asarray(c.values), jnp.asarray(0.0), 1, d
+
+
 # --- decomposition ---------------------------------------------------------------------------
 
 
@@ -82,14 +91,9 @@ def test_preconditioner_is_symmetric_positive_definite():
 
 
 def test_preconditioner_cuts_iterations():
-    c = _torus_constraints()
-    x = jnp.asarray(c.points)
-    x = (x - x.min(0)) / jnp.max(x.max(0) - x.min(0))
-    h = jnp.asarray(c.values)
-    kernel = make_kernel("cubic")
-    d = tuple(jnp.asarray(a) for a in decompose(np.asarray(x), leaf=300))
-    pre = solve_system(kernel, x, h, jnp.asarray(0.0), 1, "cg", 1e-10, 2000, d)
-    plain = solve_system(kernel, x, h, jnp.asarray(0.0), 1, "cg", 1e-10, 2000, None)
+    kernel, x, h, s, degree, d = _torus_system(leaf=300)
+    pre = solve_system(kernel, x, h, s, degree, "cg", 1e-10, 2000, d)
+    plain = solve_system(kernel, x, h, s, degree, "cg", 1e-10, 2000, None)
     assert bool(pre.ok) and float(pre.residual) < 1e-7
     assert int(pre.steps) < 100
     assert int(pre.steps) * 5 < int(plain.steps)
@@ -130,13 +134,8 @@ def test_cg_iteration_cap():
 
 def test_matrix_free_cg_matches_stored():
     # above the dense limit CG applies C block by block instead of storing it: same answer
-    c = _torus_constraints()
-    x = jnp.asarray(c.points)
-    x = (x - x.min(0)) / jnp.max(x.max(0) - x.min(0))
-    h = jnp.asarray(c.values)
-    kernel = make_kernel("cubic")
-    d = tuple(jnp.asarray(a) for a in decompose(np.asarray(x)))
-    args = (kernel, x, h, jnp.asarray(0.0), 1, "cg", 1e-11, 500, d)
+    kernel, x, h, s, degree, d = _torus_system()
+    args = (kernel, x, h, s, degree, "cg", 1e-11, 500, d)
     stored = solve_system(*args, stored=True)
     free = solve_system(*args, stored=False)
     assert bool(free.ok) and float(free.residual) < 1e-7

@@ -123,9 +123,10 @@ class _PCG(lx.AbstractLinearSolver):
             y, r, p, gamma, step = c
             ap = op.mv(p)
             alpha = gamma / jnp.vdot(p, ap)
-            z = apply_pre(r - alpha * ap)
-            gamma_new = jnp.vdot(r - alpha * ap, z)
-            return y + alpha * p, r - alpha * ap, z + (gamma_new / gamma) * p, gamma_new, step + 1
+            r = r - alpha * ap
+            z = apply_pre(r)
+            gamma_new = jnp.vdot(r, z)
+            return y + alpha * p, r, z + (gamma_new / gamma) * p, gamma_new, step + 1
 
         z0 = apply_pre(b)
         init = (jnp.zeros_like(b), b, z0, jnp.vdot(b, z0), jnp.array(0))
@@ -250,6 +251,7 @@ def solve_system(
             fix = lx.linear_solve(op, resid, chol, state=state, throw=False)
             w, result = w + project(fix.value), fix.result
         else:
+            vec = jax.ShapeDtypeStruct((n,), h.dtype)
             if solver == "cg" and stored:
                 op = stored_operator()
             else:
@@ -258,13 +260,10 @@ def solve_system(
                     av = kernel_matvec(kernel, centres, project(v), smoothing)
                     return project(av) + q1 @ (q1.T @ v)
 
-                op = lx.FunctionLinearOperator(
-                    c_apply, jax.ShapeDtypeStruct((n,), h.dtype), lx.positive_semidefinite_tag
-                )
+                op = lx.FunctionLinearOperator(c_apply, vec, lx.positive_semidefinite_tag)
             pre = None
             if decomposition is not None:
                 pre = schwarz_preconditioner(kernel, centres, degree, smoothing, decomposition, q1)
-            vec = jax.ShapeDtypeStruct((n,), h.dtype)
             cap = max_steps if max_steps is not None else min(20 * n, 5000)
             if solver == "cg":
                 options = {}

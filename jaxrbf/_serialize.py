@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import os
-import zipfile
 
 import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InputError
 from ._model import RBFModel, n_poly
+from .io import atomic_output, read_npz
 from .kernels import KERNELS
 
 FORMAT = "jaxrbf-model"
@@ -25,7 +25,6 @@ def save(model: RBFModel, path) -> None:
     version that wrote it.
     """
     from . import __version__
-    from .io import atomic_output
 
     if not isinstance(model, RBFModel):
         raise InputError(f"save() takes an RBFModel, got {type(model).__name__}")
@@ -61,14 +60,7 @@ def load(path) -> RBFModel:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError(f"model file '{path}' does not exist")
-    try:
-        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
-        raise InputError(
-            f"'{path}' is not a readable .npz file (truncated or corrupt: {type(e).__name__}); "
-            "save the model again with `jaxrbf fit`"
-        ) from None
+    data = read_npz(path, hint="; save the model again with `jaxrbf fit`")
     if data.get("format", np.array("")).item() != FORMAT:
         raise InputError(f"'{path}' is not a jaxrbf model (it has no format='{FORMAT}' entry)")
     missing = [

@@ -379,19 +379,24 @@ def _load_geometry(p: str, ext: str):
     return vertices, faces, props
 
 
-def _npz(p: str) -> dict[str, np.ndarray]:
+def read_npz(p: str, hint: str = "") -> dict[str, np.ndarray]:
+    """Every array of the .npz archive `p`, read with `allow_pickle=False`.
+
+    Any failure (missing, truncated or corrupt archive, a member that is not a .npy array) is an
+    `InputError` naming the file; `hint` is appended to its message."""
     try:
         # Open the file here: np.load leaks its handle when the zip is corrupt.
         with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             out = {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as e:
         raise InputError(
-            f"'{p}' could not be read as an .npz archive: {_short(e)}; the file may be truncated"
+            f"'{p}' could not be read as an .npz archive (truncated or corrupt: {_short(e)}){hint}"
         ) from e
     for k, a in out.items():
         if not isinstance(a, np.ndarray):  # np.load returns raw bytes for a member that is no .npy
             raise InputError(
                 f"'{p}' could not be read as an .npz archive: member '{k}' is not a .npy array"
+                f"{hint}"
             )
     return out
 
@@ -429,7 +434,7 @@ def read_mesh(path) -> Mesh:
     """
     p, ext = _check_file(path, _MESH_INPUTS)
     if ext == ".npz":
-        return _npz_mesh(p, _npz(p))
+        return _npz_mesh(p, read_npz(p))
     if ext == ".obj":
         vertices, faces = _read_obj(p)
     else:
@@ -499,7 +504,7 @@ def read_points(path) -> PointCloud:
         if all(k in props for k in ("nx", "ny", "nz")):
             normals = np.stack([props["nx"], props["ny"], props["nz"]], axis=1)
     elif ext == ".npz":
-        z = _npz(p)
+        z = read_npz(p)
         if "points" not in z:
             hint = " (it looks like a mesh: use read_mesh or read_input)" if "faces" in z else ""
             raise InputError(
@@ -638,7 +643,7 @@ def read_input(path) -> Mesh | PointCloud | Polyline:
     if ext in (".xyz", ".txt"):
         return read_points(p)
     if ext == ".npz":
-        z = _npz(p)
+        z = read_npz(p)
         if "vertices" in z and "faces" in z:
             return _npz_mesh(p, z)
         if "points" in z:

@@ -231,6 +231,11 @@ def _verdict(ok: bool) -> str:
     return "PASS" if ok else "FAIL"
 
 
+def _table(results: list[dict], header: list[str], row) -> str:
+    """One table, a row per size: `row(result, jaxrbf's numbers, scipy's numbers)`."""
+    return format_table(header, [row(r, r["jaxrbf"], r["scipy"]) for r in results])
+
+
 def report(results: list[dict], args, mesh: Path) -> str:
     j0, s0 = results[0]["jaxrbf"], results[0]["scipy"]
     out = [
@@ -240,11 +245,11 @@ def report(results: list[dict], args, mesh: Path) -> str:
         f"Fit (seconds; jaxrbf warm = best of {args.repeats} after a cold first fit that compiles; "
         f"scipy = best of {args.repeats}; ratio = scipy / jaxrbf warm, target >= {FIT_TARGET:g}x)",
     ]
-    rows = []
-    for r in results:
-        j, s = r["jaxrbf"], r["scipy"]
-        rows.append(
-            [
+    out.append(
+        _table(
+            results,
+            ["N", "constraints", "jaxrbf cold", "jaxrbf warm", "scipy", "ratio", "target"],
+            lambda r, j, s: [
                 r["surface_points"],
                 r["constraints"],
                 f"{j['fit_cold_s']:.2f}",
@@ -252,11 +257,7 @@ def report(results: list[dict], args, mesh: Path) -> str:
                 f"{s['fit_s']:.2f}",
                 f"{r['fit_ratio']:.2f}x",
                 _verdict(r["fit_ratio"] >= FIT_TARGET and r["same_accuracy"]),
-            ]
-        )
-    out.append(
-        format_table(
-            ["N", "constraints", "jaxrbf cold", "jaxrbf warm", "scipy", "ratio", "target"], rows
+            ],
         )
     )
     out += [
@@ -265,23 +266,9 @@ def report(results: list[dict], args, mesh: Path) -> str:
         f"first {s0['eval_points']:,} of them; "
         f"ratio = jaxrbf / scipy, target >= {EVAL_TARGET:g}x)",
     ]
-    rows = []
-    for r in results:
-        j, s = r["jaxrbf"], r["scipy"]
-        rows.append(
-            [
-                r["surface_points"],
-                f"{j['eval_cold_s']:.2f} s",
-                f"{j['eval_s']:.2f} s",
-                fmt_rate(j["eval_rate"]),
-                f"{s['eval_s']:.2f} s",
-                fmt_rate(s["eval_rate"]),
-                f"{r['eval_ratio']:.1f}x",
-                _verdict(r["eval_ratio"] >= EVAL_TARGET),
-            ]
-        )
     out.append(
-        format_table(
+        _table(
+            results,
             [
                 "N",
                 "jaxrbf 1st call",
@@ -292,7 +279,16 @@ def report(results: list[dict], args, mesh: Path) -> str:
                 "ratio",
                 "target",
             ],
-            rows,
+            lambda r, j, s: [
+                r["surface_points"],
+                f"{j['eval_cold_s']:.2f} s",
+                f"{j['eval_s']:.2f} s",
+                fmt_rate(j["eval_rate"]),
+                f"{s['eval_s']:.2f} s",
+                fmt_rate(s["eval_rate"]),
+                f"{r['eval_ratio']:.1f}x",
+                _verdict(r["eval_ratio"] >= EVAL_TARGET),
+            ],
         )
     )
     out += [
@@ -300,19 +296,19 @@ def report(results: list[dict], args, mesh: Path) -> str:
         "Peak memory (MiB, whole worker process: peak RSS, and in brackets its rise above the "
         "baseline after imports and data loading)",
     ]
-    rows = []
-    for r in results:
-        j, s = r["jaxrbf"], r["scipy"]
-        rows.append(
-            [
+    out.append(
+        _table(
+            results,
+            ["N", "jaxrbf", "scipy", "scipy / jaxrbf", "(rise)"],
+            lambda r, j, s: [
                 r["surface_points"],
                 f"{j['peak_mib']:.0f} (+{j['peak_mib'] - j['baseline_mib']:.0f})",
                 f"{s['peak_mib']:.0f} (+{s['peak_mib'] - s['baseline_mib']:.0f})",
                 f"{r['memory_ratio']:.2f}",
                 f"{r['memory_rise_ratio']:.2f}",
-            ]
+            ],
         )
-    out.append(format_table(["N", "jaxrbf", "scipy", "scipy / jaxrbf", "(rise)"], rows))
+    )
     out += [
         "",
         "Accuracy (relative to max |values|): |f_jaxrbf - f_scipy| max over the compared queries; "
@@ -320,23 +316,18 @@ def report(results: list[dict], args, mesh: Path) -> str:
         f"Same accuracy: jaxrbf residual <= max({ACCURACY_FACTOR:g} x scipy's, "
         f"{ACCURACY_FLOOR:g}) and agreement <= {AGREE_TOL:g}.",
     ]
-    rows = []
-    for r in results:
-        j, s = r["jaxrbf"], r["scipy"]
-        rows.append(
-            [
+    out.append(
+        _table(
+            results,
+            ["N", "jaxrbf vs scipy", "resid jaxrbf", "resid scipy", "jaxrbf solve resid", "same"],
+            lambda r, j, s: [
                 r["surface_points"],
                 f"{r['agreement_rel']:.2e}",
                 f"{j['residual_rel']:.2e}",
                 f"{s['residual_rel']:.2e}",
                 f"{j['solve_residual']:.2e}",
                 "yes" if r["same_accuracy"] else "NO",
-            ]
-        )
-    out.append(
-        format_table(
-            ["N", "jaxrbf vs scipy", "resid jaxrbf", "resid scipy", "jaxrbf solve resid", "same"],
-            rows,
+            ],
         )
     )
     target = next((r for r in results if r["surface_points"] == TARGET_SIZE), results[-1])

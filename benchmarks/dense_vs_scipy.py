@@ -81,6 +81,31 @@ AGREE_TOL = 1e-5
 # --- workers (run in fresh subprocesses) ------------------------------------------------------
 
 
+def _repeat(fn, repeats: int):
+    """Run `fn` `repeats` times: its last value and every wall time."""
+    times = []
+    for _ in range(repeats):
+        value, t = timed(fn)
+        times.append(t)
+    return value, times
+
+
+def _summary(library, t_fit, t_eval, q, f_pts, vals, base, peak_fit) -> dict:
+    """The numbers both workers report."""
+    return {
+        "library": library,
+        "fit_s": min(t_fit),
+        "fit_all_s": t_fit,
+        "eval_points": len(q),
+        "eval_s": min(t_eval),
+        "eval_all_s": t_eval,
+        "residual_abs": float(np.max(np.abs(f_pts - vals))),
+        "baseline_mib": base,
+        "peak_fit_mib": peak_fit,
+        "peak_mib": peak_rss_mib(),
+    }
+
+
 def _worker_jaxrbf(data: dict, repeats: int) -> tuple[dict, np.ndarray]:
     ensure_jaxrbf_importable()
     import jax
@@ -95,37 +120,19 @@ def _worker_jaxrbf(data: dict, repeats: int) -> tuple[dict, np.ndarray]:
         model = jaxrbf.fit(pts, vals, kernel=KERNEL, degree=DEGREE, solver=solver)
         return jax.block_until_ready(model)
 
-    model, t_cold = timed(fit)
-    t_warm = []
-    for _ in range(repeats):
-        model, t = timed(fit)
-        t_warm.append(t)
+    _, t_cold = timed(fit)
+    model, t_warm = _repeat(fit, repeats)
     peak_fit = peak_rss_mib()
 
     def evaluate():
         return np.asarray(model(q))
 
     _, t_eval_cold = timed(evaluate)
-    t_eval = []
-    for _ in range(repeats):
-        f_q, t = timed(evaluate)
-        t_eval.append(t)
+    f_q, t_eval = _repeat(evaluate, repeats)
     f_pts = np.asarray(model(pts))
-    result = {
-        "library": f"jaxrbf {jaxrbf.__version__} (jax {jax.__version__}, {jax.default_backend()})",
-        "fit_cold_s": t_cold,
-        "fit_s": min(t_warm),
-        "fit_all_s": t_warm,
-        "solve_residual": float(model.residual),
-        "eval_points": len(q),
-        "eval_cold_s": t_eval_cold,
-        "eval_s": min(t_eval),
-        "eval_all_s": t_eval,
-        "residual_abs": float(np.max(np.abs(f_pts - vals))),
-        "baseline_mib": base,
-        "peak_fit_mib": peak_fit,
-        "peak_mib": peak_rss_mib(),
-    }
+    library = f"jaxrbf {jaxrbf.__version__} (jax {jax.__version__}, {jax.default_backend()})"
+    result = _summary(library, t_warm, t_eval, q, f_pts, vals, base, peak_fit)
+    result.update(fit_cold_s=t_cold, eval_cold_s=t_eval_cold, solve_residual=float(model.residual))
     return result, f_q
 
 
@@ -135,33 +142,14 @@ def _worker_scipy(data: dict, repeats: int, n_queries: int) -> tuple[dict, np.nd
 
     pts, vals, q = data["points"], data["values"], data["queries"][:n_queries]
     base = current_rss_mib()
-
-    def fit():
-        return RBFInterpolator(pts, vals, kernel=KERNEL, degree=DEGREE)
-
-    t_fit = []
-    for _ in range(repeats):
-        interp, t = timed(fit)
-        t_fit.append(t)
+    interp, t_fit = _repeat(
+        lambda: RBFInterpolator(pts, vals, kernel=KERNEL, degree=DEGREE), repeats
+    )
     peak_fit = peak_rss_mib()
-    t_eval = []
-    for _ in range(repeats):
-        f_q, t = timed(lambda: interp(q))
-        t_eval.append(t)
+    f_q, t_eval = _repeat(lambda: interp(q), repeats)
     f_pts = interp(pts)
-    result = {
-        "library": f"scipy {scipy.__version__}",
-        "fit_s": min(t_fit),
-        "fit_all_s": t_fit,
-        "eval_points": len(q),
-        "eval_s": min(t_eval),
-        "eval_all_s": t_eval,
-        "residual_abs": float(np.max(np.abs(f_pts - vals))),
-        "baseline_mib": base,
-        "peak_fit_mib": peak_fit,
-        "peak_mib": peak_rss_mib(),
-    }
-    return result, f_q
+    library = f"scipy {scipy.__version__}"
+    return _summary(library, t_fit, t_eval, q, f_pts, vals, base, peak_fit), f_q
 
 
 def worker_main(args: argparse.Namespace) -> None:

@@ -24,6 +24,7 @@ from ._errors import JaxRBFError as JaxRBFError
 from ._errors import SolveError as SolveError
 from ._fit import fit as fit
 from ._model import RBFModel as RBFModel
+from ._partition import PartitionModel as PartitionModel
 from ._polygonize import contour as contour
 from ._polygonize import polygonize as polygonize
 from ._project import project as project

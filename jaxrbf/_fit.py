@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._constraints import Constraints, log
 from ._errors import InputError, SolveError
-from ._model import RBFModel, n_poly
+from ._model import AbstractModel, RBFModel, n_poly
 from ._prepare import find_duplicates, unit_box_transform
 from ._schwarz import decompose
 from ._solve import SOLVERS, solve_system
@@ -24,6 +25,10 @@ DENSE_LIMIT = 21_000
 DEFAULT_RTOL = {"cg": 1e-11, "gmres": 1e-8}
 #: A fit whose relative residual max|B x - rhs| / max|rhs| exceeds this is an error.
 RESIDUAL_TOL = 1e-6
+METHODS = ("auto", "dense", "partition", "global")
+#: `method="auto"` solves one global system up to this many unknowns (a few seconds with CG),
+#: and blends local fits (partition of unity) beyond.
+AUTO_DENSE_LIMIT = 15_000
 
 
 def _available_memory() -> int | None:
@@ -55,6 +60,19 @@ def _check_size(n: int, solver: str) -> None:
         )
 
 
+def choose_method(method: str, unknowns: int, verbose: bool = False) -> str:
+    """`method`, with `auto` resolved: `dense` up to `AUTO_DENSE_LIMIT` unknowns, else
+    `partition`. The choice is reported on stderr when `verbose`, or when it is not `dense`."""
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if method != "auto":
+        return method
+    method = "dense" if unknowns <= AUTO_DENSE_LIMIT else "partition"
+    if verbose or method != "dense":
+        log(f"method auto: {method} ({unknowns:,} unknowns; dense up to {AUTO_DENSE_LIMIT:,})")
+    return method
+
+
 def _store_matrix(n: int) -> bool:
     """Whether CG may keep the n x n null-space matrix (else it applies it block by block)."""
     avail = _available_memory()
@@ -68,12 +86,15 @@ def fit(
     kernel: str | AbstractKernel = "cubic",
     degree: int = 1,
     smoothing: float = 0.0,
-    solver: str = "lu",
+    solver: str | None = None,
     radius: float | None = None,
     rtol: float | None = None,
     max_steps: int | None = None,
+    method: str = "auto",
+    tol: float | None = None,
+    seed: int = 0,
     verbose: bool = False,
-) -> RBFModel:
+) -> AbstractModel:
     """Fit f(x) = sum_j w_j phi(|x - c_j|) + p(x) through `values` at `points` (eq. 5-6).
 
     Like `scipy.interpolate.RBFInterpolator(points, values, kernel=..., degree=..., smoothing=...,
@@ -89,7 +110,13 @@ def fit(
     - `degree`: polynomial degree: 1 (the paper's eq. 6), 0 or -1 (none); at least the kernel's
       `min_degree`.
     - `smoothing`: lambda >= 0 added to the diagonal (A + lambda I); 0 interpolates.
-    - `solver`: `lu` (the paper's), `cholesky` (null-space form), `cg` (conjugate gradients on
+    - `method`: `dense` (one global system, solved by `solver`), `partition` (a
+      partition-of-unity blend of small local fits, `jaxrbf._partition`: for large inputs, memory
+      O(n)), `global` (exact global interpolation at large n: greedy centre selection with
+      matrix-free `solver`, `jaxrbf._greedy`), or `auto` (the default): `dense` up to
+      `AUTO_DENSE_LIMIT` unknowns, `partition` beyond (and `dense` whenever `solver` is given);
+      it says what it picked on stderr.
+    - `solver`: for `dense` and `global`; `lu` (the paper's; the default for `dense`), `cholesky` (null-space form), `cg` (conjugate gradients on
       the null-space form, preconditioned by overlapping local solves and a coarse solve: the
       fastest for a few thousand points and more), `gmres` (matrix-free: the kernel matrix is
       applied block by block and never stored; same preconditioner).
@@ -99,9 +126,13 @@ def fit(
       iterations). Both stop when max|residual| <= rtol max|values|: CG on its recursive residual
       (default rtol 1e-11), GMRES on the true one, which rounding keeps near 1e-9 for large
       polyharmonic systems (default rtol 1e-8).
+    - `tol`, `seed`: `global` only: the absolute residual to reach at every constraint (default
+      1e-3 max|values|) and the seed of its initial subset.
     - `verbose`: report the solve and its residual on stderr.
 
-    **Returns:** an `RBFModel`. Its `residual` is the relative residual of the solve.
+    **Returns:** an `RBFModel` (`dense`, `global`) or a `PartitionModel` (`partition`). Its
+    `residual` is the relative residual max|f(x_i) - h_i| / max|h| (for `partition`, measured at
+    up to 50,000 of the constraints).
 
     **Raises:** `InputError` for unusable input (with what was expected), `SolveError` when the
     system is singular or the solution does not reproduce the constraints.
@@ -125,8 +156,15 @@ def fit(
         raise InputError(f"`values` must have shape ({len(x)},) to match `points`, got {h.shape}")
     if not np.all(np.isfinite(h)):
         raise InputError(f"`values` has {int(np.sum(~np.isfinite(h)))} NaN or infinite entries")
-    if solver not in SOLVERS:
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if solver is not None and solver not in SOLVERS:
         raise InputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}")
+    if solver is not None and method == "partition":
+        raise InputError(
+            "`solver` applies to method='dense' or 'global'; the partition method solves its "
+            "small local systems directly (leave `solver` unset)"
+        )
     if degree not in (-1, 0, 1):
         raise InputError(f"`degree` must be -1 (no polynomial), 0 or 1, got {degree!r}")
     smoothing = float(smoothing)
@@ -166,6 +204,32 @@ def fit(
                 f"all {n} points lie on one {'plane' if dim == 3 else 'hyperplane'}, so the degree-1 "
                 "polynomial is not determined; use degree=0 or add points off that plane"
             )
+    if method == "auto" and solver is not None:
+        method = "dense"  # a solver was asked for: it solves one global system
+    method = choose_method(method, n + k, verbose)
+    if method == "global":
+        from ._greedy import greedy_fit
+
+        model, report = greedy_fit(
+            x,
+            h,
+            kernel=kern,
+            degree=degree,
+            smoothing=smoothing,
+            tol=tol,
+            solver=solver or "cg",
+            seed=seed,
+            verbose=verbose,
+        )
+        if not report.converged:
+            raise SolveError(
+                f"the global fit did not reach tol at every constraint: {report.summary()}"
+            )
+        return model
+    if method == "partition":
+        return _fit_partition(x, h, kern, degree, smoothing, shift, scale, seed, verbose)
+    if solver is None:
+        solver = "lu"
     _check_size(n + k, solver)
     kern = kern.scaled(1.0 / scale)
     # The solve runs in the unit box; scale the smoothing so that it means what it means in the
@@ -225,3 +289,43 @@ def fit(
         residual=jnp.asarray(residual),
         degree=degree,
     )
+
+
+#: A partition-of-unity fit interpolates every constraint its patches hold (to ~1e-11); a patch
+#: that had to be capped (`jaxrbf._partition.MAX_POINTS`) approximates a few. Beyond this the
+#: fit is an error.
+PARTITION_RESIDUAL_TOL = 1e-3
+
+
+def _fit_partition(x, h, kern, degree, smoothing, shift, scale, seed, verbose):
+    from ._partition import check_memory, constraint_residual, fit_partition
+
+    check_memory(len(x), x.shape[1])
+    t0 = time.perf_counter()
+    if verbose:
+        log(f"fitting {len(x):,} constraints by partition of unity: {kern.name} kernel, float64")
+    model = fit_partition(
+        x,
+        h,
+        kernel=kern,
+        degree=degree,
+        smoothing=smoothing,
+        shift=shift,
+        scale=scale,
+        seed=seed,
+        verbose=verbose,
+    )
+    residual = constraint_residual(model, x, h)
+    if verbose:
+        log(
+            f"partition of unity: {model.n_patches:,} patches on {model.n_levels} levels in "
+            f"{time.perf_counter() - t0:.1f} s; relative residual {residual:.2e} at the constraints"
+        )
+    if not np.isfinite(residual) or residual > PARTITION_RESIDUAL_TOL:
+        raise SolveError(
+            f"the partition-of-unity fit does not reproduce its constraints: relative residual "
+            f"{residual:.2e} > {PARTITION_RESIDUAL_TOL:.0e}: its local systems are too badly "
+            "conditioned (a kernel radius much larger than the point spacing does that); try a "
+            "smaller radius, smoothing > 0, or the cubic kernel"
+        )
+    return eqx.tree_at(lambda m: m.residual, model, jnp.asarray(residual))

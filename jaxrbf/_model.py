@@ -64,7 +64,61 @@ def map_blocks(fn: Callable[[Array], Array], x: Float[Array, "n d"], rows: int) 
     return out.reshape((nb * rows,) + out.shape[2:])[:n]
 
 
-class RBFModel(eqx.Module):
+class AbstractModel(eqx.Module):
+    """What every fitted implicit shares: evaluation in the user's units through a normalising
+    transform x' = (x - shift) / scale, in fixed-size blocks (memory bounded for any number of
+    points), with gradients and unit normals from `jax.grad`.
+
+    Subclasses hold `shift`, `scale` and `residual` fields and implement `_eval_normalised`
+    (values at a block of normalised points), `_block_rows` (the block size) and `bounds`.
+    """
+
+    shift: eqx.AbstractVar[Float[Array, " d"]]
+    scale: eqx.AbstractVar[Float[Array, ""]]
+    residual: eqx.AbstractVar[Float[Array, ""]]
+
+    @property
+    def dim(self) -> int:
+        return self.shift.shape[0]
+
+    def normalise(self, x: Array) -> Array:
+        return (x - self.shift) / self.scale
+
+    def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
+        raise NotImplementedError
+
+    def _block_rows(self) -> int:
+        raise NotImplementedError
+
+    def bounds(self) -> tuple[Array, Array]:
+        raise NotImplementedError
+
+    def _flat(self, x: ArrayLike) -> tuple[Array, tuple[int, ...]]:
+        x = jnp.asarray(x)
+        if x.ndim < 1 or x.shape[-1] != self.dim:
+            raise ValueError(
+                f"points must have shape (..., {self.dim}) for this {self.dim}-D model, got {x.shape}"
+            )
+        return x.reshape(-1, self.dim).astype(self.shift.dtype), x.shape[:-1]
+
+    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
+        """f at points `x` of shape (..., d); returns shape (...)."""
+        flat, lead = self._flat(x)
+        return _values(self, flat).reshape(lead)
+
+    def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
+        """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
+        flat, lead = self._flat(x)
+        return _gradients(self, flat).reshape(lead + (self.dim,))
+
+    def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
+        """The unit normal grad f / |grad f| (outward: f grows outside)."""
+        g = self.gradient(x)
+        norm = jnp.linalg.norm(g, axis=-1, keepdims=True)
+        return g / jnp.where(norm > 0, norm, 1.0)
+
+
+class RBFModel(AbstractModel):
     """f(x) = sum_j w_j phi(|x' - c_j|) + p(x'), with x' = (x - shift) / scale (paper eq. 5).
 
     Centres, weights and polynomial coefficients live in the normalised frame (the unit box the fit
@@ -91,40 +145,12 @@ class RBFModel(eqx.Module):
     residual: Float[Array, ""]
     degree: int = eqx.field(static=True)
 
-    @property
-    def dim(self) -> int:
-        return self.centres.shape[1]
-
-    def normalise(self, x: Array) -> Array:
-        return (x - self.shift) / self.scale
-
     def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
         phi = kernel_block(self.kernel, xn, self.centres)
         return phi @ self.weights + poly_basis(xn, self.degree) @ self.coeffs
 
-    def _flat(self, x: ArrayLike) -> tuple[Array, tuple[int, ...]]:
-        x = jnp.asarray(x)
-        if x.ndim < 1 or x.shape[-1] != self.dim:
-            raise ValueError(
-                f"points must have shape (..., {self.dim}) for this {self.dim}-D model, got {x.shape}"
-            )
-        return x.reshape(-1, self.dim).astype(self.centres.dtype), x.shape[:-1]
-
-    def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
-        """f at points `x` of shape (..., d); returns shape (...)."""
-        flat, lead = self._flat(x)
-        return _values(self, flat).reshape(lead)
-
-    def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
-        """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
-        flat, lead = self._flat(x)
-        return _gradients(self, flat).reshape(lead + (self.dim,))
-
-    def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
-        """The unit normal grad f / |grad f| (outward: f grows outside)."""
-        g = self.gradient(x)
-        norm = jnp.linalg.norm(g, axis=-1, keepdims=True)
-        return g / jnp.where(norm > 0, norm, 1.0)
+    def _block_rows(self) -> int:
+        return block_rows(self.centres.shape[0])
 
     def bounds(self) -> tuple[Array, Array]:
         """Bounding box (lo, hi) of the centres in the user's coordinates."""
@@ -134,14 +160,14 @@ class RBFModel(eqx.Module):
 
 # Compiled once per (model structure, number of points): repeated calls do not retrace.
 @eqx.filter_jit
-def _values(model: RBFModel, flat: Array) -> Array:
-    rows = block_rows(model.centres.shape[0])
+def _values(model: AbstractModel, flat: Array) -> Array:
+    rows = model._block_rows()
     return map_blocks(lambda b: model._eval_normalised(model.normalise(b)), flat, rows)
 
 
 @eqx.filter_jit
-def _gradients(model: RBFModel, flat: Array) -> Array:
-    rows = block_rows(model.centres.shape[0])
+def _gradients(model: AbstractModel, flat: Array) -> Array:
+    rows = model._block_rows()
 
     def block(b):
         return jax.grad(lambda y: jnp.sum(model._eval_normalised(model.normalise(y))))(b)

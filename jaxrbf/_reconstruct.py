@@ -14,8 +14,8 @@ import numpy as np
 
 from ._constraints import DEFAULT_OFFSET, Constraints, log
 from ._errors import InputError
-from ._fit import fit
-from ._model import RBFModel
+from ._fit import choose_method, fit
+from ._model import AbstractModel, n_poly
 from ._prepare import check_not_flat, diagonal
 
 #: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
@@ -39,7 +39,7 @@ def example(name: str = "bunny") -> tuple[np.ndarray, np.ndarray]:
 
 def _subsample(p, n, k, seed):
     if k is None:
-        k = min(len(p), DEFAULT_POINTS)
+        k = len(p)
     if k < len(p):
         idx = np.sort(np.random.default_rng(seed).choice(len(p), k, replace=False))
         return p[idx], n[idx]
@@ -54,13 +54,18 @@ def constraints_from(
     sampling: str = "faces",
     offset: float | None = None,
     seed: int = 0,
+    subsample: bool = False,
     verbose: bool = False,
 ) -> Constraints:
     """Constraints from a file path (mesh, point cloud with normals, 2-D polyline) or from arrays.
 
     **Arguments:**
     - `source`: a path, or an (n, d) array of surface points (then `normals` is required).
-    - `points`: surface points to use (default: all, at most `DEFAULT_POINTS`).
+    - `points`: surface points to use. Default: for meshes, `DEFAULT_POINTS` samples (or
+      the vertex count, if smaller); for point clouds, all of them, or at most `DEFAULT_POINTS`
+      when `subsample` is set.
+    - `subsample`: cap a point cloud at `DEFAULT_POINTS` when `points` is not given (what the
+      dense method wants; the scalable methods take every point).
     - `sampling`: for meshes, `faces` (uniform samples with face normals) or `vertices`
       (area-weighted vertex normals).
     - `offset`: d as a fraction of the bounding-box diagonal (default 0.01).
@@ -100,8 +105,13 @@ def constraints_from(
                 "inside and outside are known"
             )
         check_not_flat(data.points, f"points of {name}")
-        if verbose and points is None and len(data.points) > DEFAULT_POINTS:
-            log(f"{name}: using {DEFAULT_POINTS:,} of {len(data.points):,} points (set --points)")
+        if points is None and subsample and len(data.points) > DEFAULT_POINTS:
+            points = DEFAULT_POINTS
+            if verbose:
+                log(
+                    f"{name}: using {DEFAULT_POINTS:,} of {len(data.points):,} points for the "
+                    "dense method (set --points, or --method auto|partition for all)"
+                )
         p, n = _subsample(data.points, data.normals, points, seed)
         c = Constraints.from_points(p, n, frac * diagonal(p))
     if verbose:
@@ -118,24 +128,36 @@ def fit_surface(
     degree: int = 1,
     smoothing: float = 0.0,
     solver: str | None = None,
+    method: str = "auto",
     points: int | None = None,
     sampling: str = "faces",
     offset: float | None = None,
     seed: int = 0,
     verbose: bool = False,
-) -> RBFModel:
+) -> AbstractModel:
     """Constraints from `source` (see `constraints_from`), then `fit`.
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper;
     `radius` (kernels that have one) is a fraction of the diagonal, default 0.1.
-    `solver` defaults to `cg` (Schwarz-preconditioned conjugate gradients: 3-4x faster than a dense
-    solve at 12,000 constraints) except for the Gaussian, whose fast-decaying spectrum defeats
-    iterative solvers: it gets `lu`.
+    `method` as for `fit` (`auto`: one dense system up to 15,000 unknowns, a partition of unity
+    beyond). For the dense and global methods `solver` defaults to `cg` (Schwarz-preconditioned
+    conjugate gradients: 3-4x faster than a dense solve at 12,000 constraints) except for the
+    Gaussian, whose fast-decaying spectrum defeats iterative solvers: it gets `lu`.
     """
+    from ._fit import METHODS
     from .kernels import AbstractKernel, kernel_class
 
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     c = constraints_from(
-        source, normals, points=points, sampling=sampling, offset=offset, seed=seed, verbose=verbose
+        source,
+        normals,
+        points=points,
+        sampling=sampling,
+        offset=offset,
+        seed=seed,
+        subsample=method == "dense",
+        verbose=verbose,
     )
     dim = c.points.shape[1]
     if kernel is None:
@@ -147,7 +169,8 @@ def fit_surface(
         r = (DEFAULT_RADIUS if radius is None else float(radius)) * diagonal(surface)
     elif radius is not None:
         raise InputError(f"the {cls.name} kernel has no radius; leave --radius unset")
-    if solver is None:
+    method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)
+    if solver is None and method != "partition":
         solver = "lu" if cls.name == "gaussian" else "cg"
     return fit(
         c,
@@ -156,6 +179,8 @@ def fit_surface(
         degree=degree,
         smoothing=smoothing,
         solver=solver,
+        method=method,
+        seed=seed,
         verbose=verbose,
     )
 
@@ -173,8 +198,8 @@ def reconstruct(
     """`source` (a mesh, point cloud or polyline file, or points + normals) to a surface.
 
     **Arguments:** `resolution` and `project` as for `polygonize`; every other option as for
-    `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `solver`, `points`, `sampling`,
-    `offset`, `seed`).
+    `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `solver`, `method`, `points`,
+    `sampling`, `offset`, `seed`).
 
     **Returns:** a `jaxrbf.io.Mesh` for 3-D input; for a 2-D polyline, a list of (k, 2) curves.
     """

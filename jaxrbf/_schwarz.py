@@ -45,9 +45,12 @@ def _kd_leaves(x: np.ndarray, idx: np.ndarray, parts: int) -> list[np.ndarray]:
     if parts <= 1 or len(idx) <= 1:
         return [idx]
     ext = np.ptp(x[idx], axis=0)
-    order = idx[np.argsort(x[idx, int(np.argmax(ext))], kind="stable")]
     left = parts // 2
-    cut = round(len(order) * left / parts)
+    cut = round(len(idx) * left / parts)
+    if cut <= 0 or cut >= len(idx):
+        return [idx]
+    # A partial sort is enough: everything left of `cut` is <= everything right of it.
+    order = idx[np.argpartition(x[idx, int(np.argmax(ext))], cut)]
     return _kd_leaves(x, order[:cut], left) + _kd_leaves(x, order[cut:], parts - left)
 
 

@@ -21,7 +21,20 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     from .kernels import KERNELS
 
     g = p.add_argument_group("fitting")
-    g.add_argument("--points", type=int, help="surface points to use (default: all, at most 4000)")
+    g.add_argument(
+        "--points",
+        type=int,
+        help="surface points to use (default: 4000 samples of a mesh; every point of a point "
+        "cloud, at most 4000 with --method dense)",
+    )
+    g.add_argument(
+        "--method",
+        choices=("auto", "dense", "partition", "global"),
+        default="auto",
+        help="dense: one global system; partition: blended local fits (millions of points); "
+        "global: exact interpolation with greedy centre selection; auto (default): dense up to "
+        "15,000 unknowns, partition beyond",
+    )
     g.add_argument(
         "--sampling",
         choices=("faces", "vertices"),
@@ -47,7 +60,8 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--solver",
         choices=SOLVERS,
-        help="linear solver (default cg; lu for the gaussian kernel)",
+        help="linear solver of the dense and global methods (default cg; lu for the gaussian "
+        "kernel)",
     )
     g.add_argument(
         "--degree", type=int, choices=(-1, 0, 1), default=1, help="polynomial degree (default 1)"
@@ -154,6 +168,7 @@ def _fit_kwargs(args) -> dict:
         degree=args.degree,
         smoothing=args.smoothing,
         solver=args.solver,
+        method=args.method,
         points=args.points,
         sampling=args.sampling,
         offset=args.offset,

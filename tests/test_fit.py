@@ -171,7 +171,7 @@ def test_dense_limit_refused_before_lapack():
     n = DENSE_LIMIT  # with the 4 polynomial terms this is above the limit
     pts = np.random.default_rng(0).random((n, 3))
     with pytest.raises(InputError, match="too many for the dense lu solver"):
-        jaxrbf.fit(pts, pts[:, 0])
+        jaxrbf.fit(pts, pts[:, 0], method="dense")
     with pytest.raises(InputError, match="too many for the dense cholesky solver"):
         jaxrbf.fit(pts, pts[:, 0], solver="cholesky")
 

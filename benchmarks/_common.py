@@ -206,3 +206,20 @@ def fmt_rate(x: float) -> str:
         if abs(x) >= div:
             return f"{x / div:.3g}{unit}/s"
     return f"{x:.3g}/s"
+
+
+def own_peak_rss_mib() -> float:
+    """Peak resident set size of this process's own address space, MiB (VmHWM on Linux).
+
+    Prefer this to `peak_rss_mib` in a worker subprocess: Linux folds the peak of the address
+    space a process replaces at exec into its ru_maxrss, and subprocess starts workers with vfork,
+    so a worker's ru_maxrss is never below its driver's peak. VmHWM belongs to the new address
+    space alone. Falls back to `peak_rss_mib` where /proc is unavailable."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return peak_rss_mib()

@@ -23,6 +23,8 @@ from ._errors import InputError as InputError
 from ._errors import JaxRBFError as JaxRBFError
 from ._errors import SolveError as SolveError
 from ._fit import fit as fit
+from ._greedy import GreedyReport as GreedyReport
+from ._greedy import greedy_fit as greedy_fit
 from ._model import RBFModel as RBFModel
 from ._partition import PartitionModel as PartitionModel
 from ._polygonize import contour as contour

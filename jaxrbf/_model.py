@@ -161,8 +161,11 @@ class RBFModel(AbstractModel):
 # Compiled once per (model structure, number of points): repeated calls do not retrace.
 @eqx.filter_jit
 def _values(model: AbstractModel, flat: Array) -> Array:
+    from ._sharding import sharded_rows
+
     rows = model._block_rows()
-    return map_blocks(lambda b: model._eval_normalised(model.normalise(b)), flat, rows)
+    fn = lambda b: model._eval_normalised(model.normalise(b))
+    return sharded_rows(lambda part: map_blocks(fn, part, rows), flat)
 
 
 @eqx.filter_jit
@@ -172,4 +175,6 @@ def _gradients(model: AbstractModel, flat: Array) -> Array:
     def block(b):
         return jax.grad(lambda y: jnp.sum(model._eval_normalised(model.normalise(y))))(b)
 
-    return map_blocks(block, flat, rows)
+    from ._sharding import sharded_rows
+
+    return sharded_rows(lambda part: map_blocks(block, part, rows), flat)

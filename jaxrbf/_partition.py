@@ -56,7 +56,7 @@ LEAF = 24
 #: Patch radius as a multiple of its leaf box's half-diagonal: the overlap between patches.
 ALPHA = 1.25
 MIN_POINTS = 48
-MAX_POINTS = 192
+MAX_POINTS = 128
 #: Below this total weight of the patches, the coarser fallback model takes over (see above).
 TAU = 0.005
 #: Each coarser level keeps one constraint in this many.
@@ -235,7 +235,7 @@ def make_patches(
     return Patches(origin[order], radius[order], idx[order], mask[order])
 
 
-def lookup_grid(origin: np.ndarray, radius: np.ndarray, cell_factor: float = 0.5):
+def lookup_grid(origin: np.ndarray, radius: np.ndarray, cell_factor: float = 0.25):
     """Cells -> candidate patches: (grid_lo, cell_size, dims, cell_row, table). `table` row 0 is
     empty (only the dummy patch, index P); every cell that some ball meets has its own row."""
     n_p, dim = origin.shape
@@ -315,7 +315,9 @@ def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
         rel = err / jnp.maximum(jnp.max(jnp.abs(hk)), 1e-300)
         return wts, cf, rel
 
-    return jax.vmap(one)(xs, hs, mask, origin, radius)
+    from ._sharding import sharded_rows
+
+    return sharded_rows(jax.vmap(one), xs, hs, mask, origin, radius)
 
 
 def _progress(total: int, desc: str, verbose: bool):
@@ -336,7 +338,7 @@ def fit_patches(
 ):
     """Solve every patch's local system, in fixed-size batches. Returns (weights, coeffs,
     worst local residual), the arrays with the dummy row appended."""
-    from ._sharding import pad_to_devices, shard_leading
+    from ._sharding import pad_to_devices
 
     n_p, m = patches.members.shape
     dim = xn.shape[1]
@@ -357,9 +359,7 @@ def fit_patches(
             width = min(m, -(-int(patches.mask[sel].sum(axis=1).max()) // 32) * 32)
             mem = patches.members[sel, :width]
             mask = patches.mask[sel, :width] & real[:, None]
-            args = shard_leading(
-                xpad[mem], hpad[mem], mask, patches.origin[sel], patches.radius[sel]
-            )
+            args = (xpad[mem], hpad[mem], mask, patches.origin[sel], patches.radius[sel])
             w, c, rel = _fit_batch(kernel, *args, degree, smoothing)
             w, c, rel = np.asarray(w), np.asarray(c), np.asarray(rel)
             stop = min(start + batch, n_p)

@@ -1,0 +1,220 @@
+"""Partition-of-unity models: agreement with the dense fit, continuity across patch borders,
+gradients, save/load, method choice and memory refusal."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import torus, torus_sdf
+
+import jaxrbf
+from jaxrbf import _fit, _partition
+from jaxrbf._errors import InputError
+from jaxrbf._partition import TAU, PartitionModel, make_patches, wendland_weight
+
+
+@pytest.fixture(scope="module")
+def torus_constraints():
+    p, n = torus(48, 20)
+    return jaxrbf.Constraints.from_points(p, n, 0.05)
+
+
+@pytest.fixture(scope="module")
+def models(torus_constraints):
+    """A two-level partition model (small base size, so that this small input has many patches)
+    and the dense fit of the same constraints."""
+    mp = pytest.MonkeyPatch()
+    mp.setattr(_partition, "BASE_SIZE", 300)
+    try:
+        pu = jaxrbf.fit(torus_constraints, method="partition")
+    finally:
+        mp.undo()
+    dense = jaxrbf.fit(torus_constraints, method="dense", solver="lu")
+    return pu, dense
+
+
+def test_structure(models, torus_constraints):
+    pu, _ = models
+    assert isinstance(pu, PartitionModel)
+    assert pu.n_levels == 3  # patches, coarser patches, global base
+    assert pu.n_patches >= 80
+    # every constraint is reproduced (each patch interpolates all the constraints its ball holds)
+    f = np.asarray(pu(torus_constraints.points))
+    assert np.max(np.abs(f - np.asarray(torus_constraints.values))) < 1e-9
+    assert float(pu.residual) < 1e-9
+
+
+def test_patches_cover_and_interpolate(torus_constraints):
+    x = np.asarray(torus_constraints.points)
+    p = make_patches(x, leaf=16)
+    members = [set(row[m].tolist()) for row, m in zip(p.members, p.mask, strict=True)]
+    d = np.linalg.norm(x[None] - p.origin[:, None], axis=2) / p.radius[:, None]  # (P, n)
+    # every constraint inside a ball is one of that patch's fit points
+    for i in range(len(p.origin)):
+        assert set(np.nonzero(d[i] <= 1.0)[0].tolist()) <= members[i]
+    # every constraint is well inside some patch (its weight there exceeds the fallback's)
+    best = wendland_weight(jnp.asarray(np.min(d, axis=0) ** 2))
+    assert float(jnp.min(best)) > TAU
+
+
+def test_agrees_with_dense(models, torus_constraints):
+    pu, dense = models
+    rng = np.random.default_rng(0)
+    # near the surface: both interpolate the same data, so they differ by the interpolation error
+    p, n = torus(48, 20)
+    q = p[rng.choice(len(p), 300)] + rng.uniform(-0.05, 0.05, (300, 1)) * n[:300]
+    a, b = np.asarray(pu(q)), np.asarray(dense(q))
+    assert np.max(np.abs(a - b)) < 0.01  # the offset d is 0.05
+    # away from it (in and out), the same sign as the true signed distance
+    far = rng.uniform(-1.6, 1.6, (4000, 3)) * [1, 1, 0.4]
+    sdf = torus_sdf(far)
+    keep = np.abs(sdf) > 0.1
+    assert np.all(np.sign(np.asarray(pu(far[keep]))) == np.sign(sdf[keep]))
+
+
+def test_meshes_like_dense(models):
+    pu, dense = models
+    a = jaxrbf.polygonize(pu, resolution=48, bounds=((-1.5, -1.5, -0.5), (1.5, 1.5, 0.5)))
+    b = jaxrbf.polygonize(dense, resolution=48, bounds=((-1.5, -1.5, -0.5), (1.5, 1.5, 0.5)))
+    assert jaxrbf.metrics.chamfer_l1(a, b, n=20_000) < 2e-3
+    # a torus: Euler characteristic 0
+    f = a.faces
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    assert len(a.vertices) - len(np.unique(edges, axis=0)) + len(f) == 0
+
+
+def _border_points(pu: PartitionModel, count: int = 40, seed: int = 0):
+    """Normalised points on the border sphere of patches (t = 1), near the data."""
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(pu.n_patches, count, replace=False)
+    u = rng.normal(size=(count, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    o, r = np.asarray(pu.origin)[idx], np.asarray(pu.radius)[idx]
+    return o + r[:, None] * u, u
+
+
+@pytest.mark.parametrize("eps", [1e-5, 1e-6])
+def test_continuous_across_patch_borders(models, eps):
+    """f and grad f just inside and just outside a patch's ball differ by O(eps): no seams."""
+    pu, _ = models
+    xn, u = _border_points(pu)
+    world = xn * float(pu.scale) + np.asarray(pu.shift)
+    step = eps * float(pu.scale) * u
+    f_in, f_out = np.asarray(pu(world - step)), np.asarray(pu(world + step))
+    g_in, g_out = np.asarray(pu.gradient(world - step)), np.asarray(pu.gradient(world + step))
+    g_mid = np.asarray(pu.gradient(world))
+    # f: the jump equals the directional derivative times the step (no discontinuity)
+    slope = np.sum(g_mid * u, axis=1) * 2 * eps * float(pu.scale)
+    assert np.max(np.abs((f_out - f_in) - slope)) < 50 * eps**2 + 1e-12
+    # grad f: continuous, its jump shrinks with eps
+    gscale = np.max(np.linalg.norm(g_mid, axis=1))
+    assert np.max(np.linalg.norm(g_out - g_in, axis=1)) < 1e4 * eps * gscale
+
+
+def test_continuous_where_the_fallback_takes_over(models):
+    """Along rays leaving the data, f stays smooth through W = tau (the hand-over to the coarser
+    model): no jumps in sampled values beyond what the gradient allows."""
+    pu, _ = models
+    rng = np.random.default_rng(1)
+    starts = np.asarray(torus(48, 20)[0])[rng.choice(960, 8)]
+    dirs = rng.normal(size=(8, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t = np.linspace(0, 0.6, 1201)
+    pts = starts[:, None] + t[None, :, None] * dirs[:, None]
+    f = np.asarray(pu(pts))
+    g = np.asarray(pu.gradient(pts))
+    df = np.abs(np.diff(f, axis=1))
+    bound = np.maximum(np.linalg.norm(g[:, 1:], axis=2), np.linalg.norm(g[:, :-1], axis=2))
+    assert np.all(df <= 1.5 * bound * (t[1] - t[0]) + 1e-12)
+    # and the rays do leave the patches: the fallback is used somewhere on them
+    xn = (pts.reshape(-1, 3) - np.asarray(pu.shift)) / float(pu.scale)
+    _, w = pu.blend(jnp.asarray(xn))
+    assert float(jnp.min(w)) < TAU
+
+
+def test_gradient_is_outward_normal(models):
+    pu, _ = models
+    p, n = torus(48, 20)
+    g = np.asarray(pu.normal(p))
+    assert np.min(np.sum(g * n, axis=1)) > 0.9
+    # jax.grad through the model works and matches the method
+    one = jax.grad(lambda y: pu(y[None])[0])(jnp.asarray(p[0]))
+    assert np.allclose(np.asarray(one), np.asarray(pu.gradient(p[0])), atol=1e-10)
+
+
+def test_save_load_round_trip(models, tmp_path):
+    pu, _ = models
+    path = tmp_path / "pu.npz"
+    jaxrbf.save(pu, path)
+    back = jaxrbf.load(path)
+    assert isinstance(back, PartitionModel) and back.n_levels == pu.n_levels
+    q = np.random.default_rng(2).uniform(-1.5, 1.5, (500, 3))
+    assert np.array_equal(np.asarray(back(q)), np.asarray(pu(q)))
+
+
+def test_load_rejects_corrupt_partition(models, tmp_path):
+    pu, _ = models
+    path = tmp_path / "pu.npz"
+    jaxrbf.save(pu, path)
+    data = dict(np.load(path))
+    data["level0.patch_table"] = data["level0.patch_table"] + 10**6
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **data)
+    with pytest.raises(InputError, match="inconsistent array shapes in level 0"):
+        jaxrbf.load(bad)
+    del data["level1.patch_origin"]
+    np.savez(bad, **data)
+    with pytest.raises(InputError, match="missing level1.patch_origin"):
+        jaxrbf.load(bad)
+
+
+def test_auto_method_choice(torus_constraints, monkeypatch, capsys):
+    small = jaxrbf.fit(torus_constraints, verbose=True)
+    assert isinstance(small, jaxrbf.RBFModel)
+    assert "method auto: dense" in capsys.readouterr().err
+    monkeypatch.setattr(_fit, "AUTO_DENSE_LIMIT", 1000)
+    monkeypatch.setattr(_partition, "BASE_SIZE", 400)
+    big = jaxrbf.fit(torus_constraints)
+    assert isinstance(big, PartitionModel)
+    assert "method auto: partition (2,884 unknowns" in capsys.readouterr().err
+    # a solver asks for one global system
+    assert isinstance(jaxrbf.fit(torus_constraints, solver="cg"), jaxrbf.RBFModel)
+
+
+def test_method_errors(torus_constraints):
+    with pytest.raises(InputError, match="unknown method 'fast'"):
+        jaxrbf.fit(torus_constraints, method="fast")
+    with pytest.raises(InputError, match="`solver` applies to method='dense' or 'global'"):
+        jaxrbf.fit(torus_constraints, method="partition", solver="lu")
+
+
+def test_memory_refused_before_start(torus_constraints, monkeypatch):
+    monkeypatch.setattr(_fit, "_available_memory", lambda: 1 << 20)
+    with pytest.raises(
+        InputError, match=r"partition-of-unity fit of 2,880 constraints needs about"
+    ):
+        jaxrbf.fit(torus_constraints, method="partition")
+
+
+def test_other_kernels(torus_constraints, monkeypatch):
+    monkeypatch.setattr(_partition, "BASE_SIZE", 400)
+    for kernel, radius in (("wendland", 1.0), ("thin-plate", None)):
+        m = jaxrbf.fit(torus_constraints, method="partition", kernel=kernel, radius=radius)
+        f = np.asarray(m(torus_constraints.points))
+        assert np.max(np.abs(f - np.asarray(torus_constraints.values))) < 1e-8, kernel
+
+
+def test_2d_partition(monkeypatch):
+    monkeypatch.setattr(_partition, "BASE_SIZE", 200)
+    t = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    p = np.stack([2 * np.cos(t), np.sin(t)], 1)
+    n = np.stack([np.cos(t), 2 * np.sin(t)], 1)
+    c = jaxrbf.Constraints.from_points(p, n, 0.02)
+    m = jaxrbf.fit(c, method="partition", kernel="thin-plate")
+    assert isinstance(m, PartitionModel)
+    curves = jaxrbf.contour(m, resolution=128)
+    assert len(curves) == 1
+    r = (curves[0][:, 0] / 2) ** 2 + curves[0][:, 1] ** 2
+    assert np.max(np.abs(r - 1)) < 0.02

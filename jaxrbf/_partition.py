@@ -62,7 +62,7 @@ TAU = 0.005
 #: Each coarser level keeps one constraint in this many.
 COARSENING = 8
 #: A level of at most this many constraints is a single global fit.
-BASE_SIZE = 6000
+BASE_SIZE = 3000
 #: Patches solved per compiled batch.
 BATCH = 256
 #: At most this many cells in the evaluation lookup grid.

@@ -190,3 +190,26 @@ def test_console_script_entry_point(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "jaxrbf: error:" in proc.stderr
     assert not (tmp_path / "o.ply").exists()
+
+
+def test_method_option_partition_fit_mesh(tmp_path, capsys, monkeypatch):
+    """`--method partition` through the CLI: the model is saved, reloaded and meshed."""
+    from jaxrbf import _partition
+
+    monkeypatch.setattr(_partition, "BASE_SIZE", 300)
+    p, n = sphere(700)
+    cloud = tmp_path / "ball.xyz"
+    np.savetxt(cloud, np.hstack([p, n]))
+    model = tmp_path / "ball.npz"
+    code, _, err = run(capsys, "fit", cloud, "-o", model, "--method", "partition")
+    assert code == 0, err
+    assert "patches on 2 levels" in err and "relative residual" in err
+    assert isinstance(jaxrbf.load(model), jaxrbf.PartitionModel)
+    out = tmp_path / "ball.ply"
+    code, _, err = run(capsys, "mesh", model, "-o", out, "--resolution", 40)
+    assert code == 0, err
+    v = jaxrbf.io.read_mesh(out).vertices
+    assert np.abs(np.linalg.norm(v, axis=1) - 1).max() < 0.02
+    with pytest.raises(SystemExit):
+        run(capsys, "fit", cloud, "-o", model, "--method", "fast")
+    assert "invalid choice: 'fast'" in capsys.readouterr().err

@@ -60,6 +60,23 @@ def _check_size(n: int, solver: str) -> None:
         )
 
 
+def points_and_values(points, values) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (n, d) points and (n,) finite values, from arrays or from a `Constraints`."""
+    if isinstance(points, Constraints):
+        if values is not None:
+            raise InputError("give either `Constraints` or `points` and `values`, not both")
+        points, values = points.points, points.values
+    elif values is None:
+        raise InputError("`values` is missing: give the value f must take at each point")
+    x = as_points(points, "points", dims=tuple(range(1, 33)))
+    h = np.asarray(values, dtype=float)
+    if h.ndim != 1 or len(h) != len(x):
+        raise InputError(f"`values` must have shape ({len(x)},) to match `points`, got {h.shape}")
+    if not np.all(np.isfinite(h)):
+        raise InputError(f"`values` has {int(np.sum(~np.isfinite(h)))} NaN or infinite entries")
+    return x, h
+
+
 def choose_method(method: str, unknowns: int, verbose: bool = False) -> str:
     """`method`, with `auto` resolved: `dense` up to `AUTO_DENSE_LIMIT` unknowns, else
     `partition`. The choice is reported on stderr when `verbose`, or when it is not `dense`."""
@@ -144,18 +161,7 @@ def fit(
             "fit needs JAX's 64-bit mode, which was turned off after importing jaxrbf; "
             "call jax.config.update('jax_enable_x64', True)"
         )
-    if isinstance(points, Constraints):
-        if values is not None:
-            raise InputError("give either `Constraints` or `points` and `values`, not both")
-        points, values = points.points, points.values
-    elif values is None:
-        raise InputError("`values` is missing: give the value f must take at each point")
-    x = as_points(points, "points", dims=tuple(range(1, 33)))
-    h = np.asarray(values, dtype=float)
-    if h.ndim != 1 or len(h) != len(x):
-        raise InputError(f"`values` must have shape ({len(x)},) to match `points`, got {h.shape}")
-    if not np.all(np.isfinite(h)):
-        raise InputError(f"`values` has {int(np.sum(~np.isfinite(h)))} NaN or infinite entries")
+    x, h = points_and_values(points, values)
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     if solver is not None and solver not in SOLVERS:

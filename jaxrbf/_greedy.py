@@ -35,14 +35,13 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._constraints import Constraints, log
+from ._constraints import log
 from ._errors import InputError
-from ._fit import fit
+from ._fit import fit, points_and_values
 from ._model import RBFModel, n_poly
 from ._prepare import find_duplicates, unit_box_transform
 from ._schwarz import _kd_leaves
 from ._solve import SOLVERS
-from .io import as_points
 from .kernels import AbstractKernel
 
 #: Default fitting accuracy as a fraction of max|values| (the offset d for surface constraints).
@@ -234,18 +233,7 @@ def greedy_fit(
     the initial size, ...), and whatever `jaxrbf.fit` raises for a subset (`SolveError` when a
     subset solve fails).
     """
-    if isinstance(points, Constraints):
-        if values is not None:
-            raise InputError("give either `Constraints` or `points` and `values`, not both")
-        points, values = points.points, points.values
-    elif values is None:
-        raise InputError("`values` is missing: give the value f must take at each point")
-    x = as_points(points, "points", dims=tuple(range(1, 33)))
-    h = np.asarray(values, dtype=float)
-    if h.ndim != 1 or len(h) != len(x):
-        raise InputError(f"`values` must have shape ({len(x)},) to match `points`, got {h.shape}")
-    if not np.all(np.isfinite(h)):
-        raise InputError(f"`values` has {int(np.sum(~np.isfinite(h)))} NaN or infinite entries")
+    x, h = points_and_values(points, values)
     if not np.any(h != 0):
         raise InputError(
             "every value is 0, so the only solution is f = 0 (the paper's trivial solution); "

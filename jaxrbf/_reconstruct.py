@@ -24,6 +24,17 @@ DEFAULT_POINTS = 4000
 #: Default kernel radius (kernels that have one), as a fraction of the diagonal.
 DEFAULT_RADIUS = 0.1
 EXAMPLES = ("bunny",)
+#: With the partition method, the default offset is at most this many median point spacings.
+PARTITION_OFFSET_SPACINGS = 2.0
+
+
+def partition_offset(surface: np.ndarray) -> float:
+    """`PARTITION_OFFSET_SPACINGS` median nearest-neighbour spacings of `surface`, as a fraction of
+    its diagonal."""
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(surface).query(surface, k=2, workers=-1)
+    return PARTITION_OFFSET_SPACINGS * float(np.median(dist[:, 1])) / diagonal(surface)
 
 
 def example(name: str = "bunny") -> tuple[np.ndarray, np.ndarray]:
@@ -170,6 +181,27 @@ def fit_surface(
     elif radius is not None:
         raise InputError(f"the {cls.name} kernel has no radius; leave --radius unset")
     method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)
+    if method == "partition" and offset is None:
+        # The partition's patches span a few point spacings; an offset of 1% of the diagonal puts
+        # the off-surface points outside them once the points are dense (1M points: ~10
+        # spacings), and the local fits then see only zeros. Keep d within reach.
+        surface = np.asarray(c.points[: c.n_surface])
+        frac = partition_offset(surface)
+        if frac < DEFAULT_OFFSET:
+            if verbose:
+                log(
+                    f"partition: offset {frac:.4f} of the diagonal ({PARTITION_OFFSET_SPACINGS:g} "
+                    "point spacings) instead of the default, so that patches hold off-surface points"
+                )
+            c = constraints_from(
+                source,
+                normals,
+                points=points,
+                sampling=sampling,
+                offset=frac,
+                seed=seed,
+                verbose=verbose,
+            )
     if solver is None and method != "partition":
         solver = "lu" if cls.name == "gaussian" else "cg"
     return fit(

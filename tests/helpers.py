@@ -60,3 +60,15 @@ def fd_gradient(f, x, h=1e-6):
         e[k] = h
         g[k] = (float(f(x + e)) - float(f(x - e))) / (2 * h)
     return g
+
+
+def signed_volume(mesh):
+    t = mesh.vertices[mesh.faces]
+    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
+
+
+def euler(mesh):
+    """Euler characteristic V - E + F of a triangle mesh (0 for a torus, 2 for a sphere)."""
+    f = mesh.faces
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    return len(mesh.vertices) - len(np.unique(edges, axis=0)) + len(f)

@@ -1,7 +1,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import sphere
+from helpers import euler, signed_volume, sphere
 
 import jaxrbf
 from jaxrbf import Constraints, InputError
@@ -27,17 +27,6 @@ def twins(q):  # two balls 0.04 apart: under two fine cells at these resolutions
 
 def shell(q):  # a sphere 0.03 thick: about one fine cell
     return jnp.abs(jnp.linalg.norm(q, axis=-1) - 1.0) - 0.015
-
-
-def signed_volume(mesh):
-    t = mesh.vertices[mesh.faces]
-    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
-
-
-def euler(mesh):
-    f = mesh.faces
-    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    return len(mesh.vertices) - len(np.unique(edges, axis=0)) + len(f)
 
 
 def canonical_faces(faces):

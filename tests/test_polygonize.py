@@ -1,21 +1,10 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import ellipse, sphere, torus, torus_sdf
+from helpers import ellipse, euler, signed_volume, sphere, torus, torus_sdf
 
 import jaxrbf
 from jaxrbf import Constraints, InputError
-
-
-def signed_volume(mesh):
-    t = mesh.vertices[mesh.faces]
-    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
-
-
-def euler(mesh):
-    f = mesh.faces
-    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    return len(mesh.vertices) - len(np.unique(edges, axis=0)) + len(f)
 
 
 def test_analytic_sphere_any_callable():

@@ -20,8 +20,9 @@ Methods (`--methods`, all four by default):
   M = `--jaxrbf-method` (default `auto`, which picks the partition-of-unity path for large inputs;
   `none` leaves the keyword out, for a jaxrbf without it), then
   `jaxrbf.polygonize(model, resolution=R)` with R from `--resolution` (by default 256 at 10k,
-  384 at 100k, 512 at 1M). Fit and meshing times are shown separately; the fit includes building
-  the constraints (offset 1% of the diagonal) and JAX's compilation: this is the cold,
+  256 at 100k, 384 at 1M). Fit and meshing times are shown separately; the fit includes building
+  the constraints (jaxrbf's default offset: 1% of the diagonal, at most 2 point spacings for
+  the partition method) and JAX's compilation: this is the cold,
   end-to-end time a user sees.
 - `poisson8`, `poisson9`: Open3D's screened Poisson reconstruction,
   `TriangleMesh.create_from_point_cloud_poisson(pcd, depth=8 or 9, n_threads=--threads)` on the
@@ -101,7 +102,7 @@ DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
 METHODS = ("jaxrbf", "poisson8", "poisson9", "scipy")
 #: jaxrbf's meshing resolution by input size (the nearest of these sizes, on a log scale, for
 #: sizes not listed), unless --resolution says otherwise.
-DEFAULT_RESOLUTION = {10_000: 256, 100_000: 384, 1_000_000: 512}
+DEFAULT_RESOLUTION = {10_000: 256, 100_000: 256, 1_000_000: 384}
 #: The poisson method the ratios and targets compare against.
 POISSON_REF = "poisson9"
 

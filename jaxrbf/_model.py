@@ -104,12 +104,21 @@ class AbstractModel(eqx.Module):
     def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
         """f at points `x` of shape (..., d); returns shape (...)."""
         flat, lead = self._flat(x)
-        return _values(self, flat).reshape(lead)
+        if _traced(self, flat):
+            return _values(self, flat).reshape(lead)
+        from ._sharding import split_over_devices
+
+        return jnp.asarray(split_over_devices(lambda f: _values(self, f), flat)).reshape(lead)
 
     def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
         flat, lead = self._flat(x)
-        return _gradients(self, flat).reshape(lead + (self.dim,))
+        if _traced(self, flat):
+            return _gradients(self, flat).reshape(lead + (self.dim,))
+        from ._sharding import split_over_devices
+
+        g = split_over_devices(lambda f: _gradients(self, f), flat)
+        return jnp.asarray(g).reshape(lead + (self.dim,))
 
     def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """The unit normal grad f / |grad f| (outward: f grows outside)."""
@@ -158,14 +167,17 @@ class RBFModel(AbstractModel):
         return world.min(axis=0), world.max(axis=0)
 
 
+def _traced(*trees) -> bool:
+    """Whether any array in `trees` is being traced (jit, vmap, grad): then evaluation stays
+    inside the caller's computation instead of being split over devices on the host."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
+
+
 # Compiled once per (model structure, number of points): repeated calls do not retrace.
 @eqx.filter_jit
 def _values(model: AbstractModel, flat: Array) -> Array:
-    from ._sharding import sharded_rows
-
     rows = model._block_rows()
-    fn = lambda b: model._eval_normalised(model.normalise(b))
-    return sharded_rows(lambda part: map_blocks(fn, part, rows), flat)
+    return map_blocks(lambda b: model._eval_normalised(model.normalise(b)), flat, rows)
 
 
 @eqx.filter_jit
@@ -175,6 +187,4 @@ def _gradients(model: AbstractModel, flat: Array) -> Array:
     def block(b):
         return jax.grad(lambda y: jnp.sum(model._eval_normalised(model.normalise(y))))(b)
 
-    from ._sharding import sharded_rows
-
-    return sharded_rows(lambda part: map_blocks(block, part, rows), flat)
+    return map_blocks(block, flat, rows)

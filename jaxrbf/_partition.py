@@ -315,9 +315,7 @@ def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
         rel = err / jnp.maximum(jnp.max(jnp.abs(hk)), 1e-300)
         return wts, cf, rel
 
-    from ._sharding import sharded_rows
-
-    return sharded_rows(jax.vmap(one), xs, hs, mask, origin, radius)
+    return jax.vmap(one)(xs, hs, mask, origin, radius)
 
 
 def _progress(total: int, desc: str, verbose: bool):
@@ -338,7 +336,7 @@ def fit_patches(
 ):
     """Solve every patch's local system, in fixed-size batches. Returns (weights, coeffs,
     worst local residual), the arrays with the dummy row appended."""
-    from ._sharding import pad_to_devices
+    from ._sharding import pad_to_devices, split_over_devices
 
     n_p, m = patches.members.shape
     dim = xn.shape[1]
@@ -360,7 +358,9 @@ def fit_patches(
             mem = patches.members[sel, :width]
             mask = patches.mask[sel, :width] & real[:, None]
             args = (xpad[mem], hpad[mem], mask, patches.origin[sel], patches.radius[sel])
-            w, c, rel = _fit_batch(kernel, *args, degree, smoothing)
+            w, c, rel = split_over_devices(
+                lambda *a: _fit_batch(kernel, *a, degree, smoothing), *args
+            )
             w, c, rel = np.asarray(w), np.asarray(c), np.asarray(rel)
             stop = min(start + batch, n_p)
             weights[start:stop, :width], coeffs[start:stop] = w[: stop - start], c[: stop - start]

@@ -1,10 +1,10 @@
 """Spreading work over every JAX device (several GPUs, or several hosts under `jax.distributed`).
 
 Everything here is a no-op on a single device. With several, batched work (the patch fits of
-the partition-of-unity method, and blocks of query points in model evaluation, hence grid
-sampling and meshing) is split along a one-axis device mesh with `shard_map`: each device
-works on its own share of the rows, with no communication until the results are joined.
-Batch sizes are rounded up to a multiple of the device count (`pad_to_devices`).
+the partition-of-unity method, and model evaluation and gradients called on concrete points) is
+split into one share per device: each device works on its own rows, with no communication, and
+the results are joined on the host. Evaluation traced inside another jit-compiled function runs
+on one device.
 
 Several hosts: start every process with `jax.distributed.initialize()` before calling jaxrbf;
 `jax.devices()` then lists every host's devices and the same mesh spans them.
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh
 
 AXIS = "devices"
 
@@ -35,31 +35,34 @@ def pad_to_devices(size: int) -> int:
     return -(-size // k) * k
 
 
-def sharded_rows(fn, *xs):
-    """`fn(*xs)` for a row-wise `fn` (each of `xs` is (n, ...), and so is each output), with the
-    rows split over all devices (`shard_map`: each device runs `fn` on its own rows, with no
-    communication; whatever `fn` closes over is replicated). Single device: `fn(*xs)`.
+def split_over_devices(fn, *arrays):
+    """`fn(*arrays)` for a row-wise `fn` (every input and output has the same leading length),
+    computed as one contiguous share of the rows per device, then joined on the host (numpy).
 
-    Used by model evaluation (query points, and so grid sampling and meshing) and the batched
-    patch fits, so several devices share each of them with no change to the caller.
+    The shares are placed with `jax.device_put` and `fn` (jit-compiled) is dispatched to every
+    device before any result is read, so the devices work at the same time; nothing is
+    communicated between them. The rows are padded to a multiple of the device count, so every
+    share has the same shape (one compilation). Single device: `fn(*arrays)`, as numpy.
 
-    Not used inside the CG/GMRES loops of the dense path: a `shard_map` kernel product inside
-    lineax's while loops deadlocked on simulated CPU devices (with or without an in-map
-    all_gather), so those matrix-free products run on one device."""
+    (A first version used `shard_map` inside the jit-compiled functions: on simulated CPU devices
+    its result resharding deadlocked at random, about one run in three, inside and outside
+    lineax's loops; host-level shares need no collective at all.)"""
     k = n_devices()
     if k == 1:
-        return fn(*xs)
-    import jax.numpy as jnp
+        return jax.tree.map(np.asarray, fn(*arrays))
+    n = len(arrays[0])
+    size = -(-n // k)
 
-    n = xs[0].shape[0]
-    pad = (-n) % k
+    def share(x, i):
+        part = np.asarray(x[i * size : (i + 1) * size])
+        if len(part) < size:
+            fill = np.broadcast_to(np.asarray(x[:1]), (size - len(part),) + part.shape[1:])
+            part = np.concatenate([part, fill]) if len(part) else np.array(fill)
+        return part
 
-    def padded(x):
-        x = jnp.asarray(x)
-        return jnp.concatenate([x, jnp.broadcast_to(x[:1], (pad,) + x.shape[1:])]) if pad else x
-
-    spec = PartitionSpec(AXIS)
-    out = jax.shard_map(
-        fn, mesh=device_mesh(), in_specs=(spec,) * len(xs), out_specs=spec, check_vma=False
-    )(*(padded(x) for x in xs))
-    return jax.tree.map(lambda o: o[:n], out)
+    outs = [
+        fn(*(jax.device_put(share(x, i), dev) for x in arrays))
+        for i, dev in enumerate(jax.devices())
+    ]
+    joined = jax.tree.map(lambda *parts: np.concatenate([np.asarray(p) for p in parts]), *outs)
+    return jax.tree.map(lambda a: a[:n], joined)

@@ -38,7 +38,7 @@ def _run(tmp_path: Path, devices: int) -> dict:
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     flags = env.get("XLA_FLAGS", "")
     env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={devices}".strip()
-    done = subprocess.run(
+    done = subprocess.run(  # a hang (see jaxrbf/_sharding.py) fails the test instead of CI
         [sys.executable, str(script), str(out)],
         env=env,
         capture_output=True,

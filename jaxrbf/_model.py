@@ -101,24 +101,24 @@ class AbstractModel(eqx.Module):
             )
         return x.reshape(-1, self.dim).astype(self.shift.dtype), x.shape[:-1]
 
+    def _dispatch(self, fn, flat: Array) -> Array:
+        """`fn(self, flat)`: inside the caller's trace when anything is traced, else split over
+        the devices (`jaxrbf._sharding`)."""
+        if _traced(self, flat):
+            return fn(self, flat)
+        from ._sharding import split_over_devices
+
+        return jnp.asarray(split_over_devices(lambda f: fn(self, f), flat))
+
     def __call__(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "..."]:
         """f at points `x` of shape (..., d); returns shape (...)."""
         flat, lead = self._flat(x)
-        if _traced(self, flat):
-            return _values(self, flat).reshape(lead)
-        from ._sharding import split_over_devices
-
-        return jnp.asarray(split_over_devices(lambda f: _values(self, f), flat)).reshape(lead)
+        return self._dispatch(_values, flat).reshape(lead)
 
     def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
         flat, lead = self._flat(x)
-        if _traced(self, flat):
-            return _gradients(self, flat).reshape(lead + (self.dim,))
-        from ._sharding import split_over_devices
-
-        g = split_over_devices(lambda f: _gradients(self, f), flat)
-        return jnp.asarray(g).reshape(lead + (self.dim,))
+        return self._dispatch(_gradients, flat).reshape(lead + (self.dim,))
 
     def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """The unit normal grad f / |grad f| (outward: f grows outside)."""

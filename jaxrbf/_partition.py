@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -172,7 +173,7 @@ class PartitionModel(AbstractModel):
 # --- construction (host) -----------------------------------------------------------------------
 
 
-class Patches(eqx.Module):
+class Patches(NamedTuple):
     """Host-side patch layout: balls and their members (indices into the constraints)."""
 
     origin: np.ndarray  # (P, d)

@@ -6,8 +6,9 @@ split into one share per device: each device works on its own rows, with no comm
 the results are joined on the host. Evaluation traced inside another jit-compiled function runs
 on one device.
 
-Several hosts: start every process with `jax.distributed.initialize()` before calling jaxrbf;
-`jax.devices()` then lists every host's devices and the same mesh spans them.
+Several hosts (`jax.distributed`): a process can only place arrays on its own devices, so each
+process splits its work over `jax.local_devices()`; spreading one fit over several hosts means
+giving each process its own part of the input.
 
 To test on a CPU: `XLA_FLAGS=--xla_force_host_platform_device_count=4` before importing JAX.
 """
@@ -16,17 +17,10 @@ from __future__ import annotations
 
 import jax
 import numpy as np
-from jax.sharding import Mesh
-
-AXIS = "devices"
 
 
 def n_devices() -> int:
-    return jax.device_count()
-
-
-def device_mesh() -> Mesh:
-    return Mesh(np.array(jax.devices()), (AXIS,))
+    return jax.local_device_count()
 
 
 def pad_to_devices(size: int) -> int:
@@ -62,7 +56,7 @@ def split_over_devices(fn, *arrays):
 
     outs = [
         fn(*(jax.device_put(share(x, i), dev) for x in arrays))
-        for i, dev in enumerate(jax.devices())
+        for i, dev in enumerate(jax.local_devices())
     ]
     joined = jax.tree.map(lambda *parts: np.concatenate([np.asarray(p) for p in parts]), *outs)
     return jax.tree.map(lambda a: a[:n], joined)

@@ -47,7 +47,7 @@ from jaxtyping import Array, Float, Int
 
 from ._constraints import log
 from ._errors import InputError, SolveError
-from ._model import AbstractModel, kernel_block, poly_basis
+from ._model import AbstractModel, _traced, kernel_block, poly_basis
 from ._schwarz import _kd_leaves
 from .kernels import AbstractKernel, _safe_sqrt
 
@@ -62,6 +62,13 @@ MAX_POINTS = 128
 TAU = 0.005
 #: Each coarser level keeps one constraint in this many.
 COARSENING = 8
+#: Off-surface offset of the coarser levels, in their own median point spacings.
+COARSE_OFFSET_SPACINGS = 2.0
+#: A coarse level is rebuilt from the surface (see `fit_partition`) when it keeps at least this
+#: many surface points; a sparser one is a random subsample of the finer level's constraints,
+#: which covers more places (measured on a 960-point torus: the rebuilt levels left sign errors
+#: away from the data that the subsample does not).
+COARSE_SURFACE_MIN = 1000
 #: A level of at most this many constraints is a single global fit.
 BASE_SIZE = 3000
 #: Patches solved per compiled batch.
@@ -156,6 +163,25 @@ class PartitionModel(AbstractModel):
         local = local + jnp.einsum("bkj,bkj->bk", poly.reshape(b, kk, -1), self.coeffs[pids])
         return jnp.sum(psi * local, axis=1), jnp.sum(psi, axis=1)
 
+    def evaluate_many(self, points, grad: bool = False):
+        """f and (with `grad`) grad f at many concrete points (n, d), as numpy arrays: the same
+        values as calling the model, computed patch by patch (see `evaluate_many` in this
+        module); `polygonize` uses it for grids and bands."""
+        return evaluate_many(self, points, grad)
+
+    def __call__(self, x):
+        flat, lead = self._flat(x)
+        if len(flat) >= BULK_MIN and not _traced(self, flat):
+            return jnp.asarray(evaluate_many(self, np.asarray(flat))[0]).reshape(lead)
+        return super().__call__(x)
+
+    def gradient(self, x):
+        flat, lead = self._flat(x)
+        if len(flat) >= BULK_MIN and not _traced(self, flat):
+            g = evaluate_many(self, np.asarray(flat), True)[1]
+            return jnp.asarray(g).reshape(lead + (self.dim,))
+        return super().gradient(x)
+
     def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
         num, den = self.blend(xn)
         short = jnp.maximum(1.0 - den / TAU, 0.0)
@@ -183,9 +209,13 @@ class Patches(NamedTuple):
 
 
 def _balls(x: np.ndarray, leaves: list[np.ndarray], alpha: float):
-    size = max(len(lf) for lf in leaves)
-    grid = np.array([np.pad(lf, (0, size - len(lf)), mode="edge") for lf in leaves])
-    pts = x[grid]  # (P, size, d), padded with repeats
+    lengths = np.array([len(lf) for lf in leaves])
+    size = int(lengths.max())
+    flat = np.concatenate(leaves)
+    starts = np.cumsum(lengths) - lengths
+    # (P, size) member indices, each leaf padded by repeating its last member
+    cols = np.minimum(np.arange(size)[None, :], lengths[:, None] - 1)
+    pts = x[flat[starts[:, None] + cols]]  # (P, size, d)
     origin = 0.5 * (pts.min(axis=1) + pts.max(axis=1))
     reach = np.sqrt(np.max(np.sum((pts - origin[:, None]) ** 2, axis=2), axis=1))
     return origin, alpha * np.maximum(reach, 1e-12)
@@ -236,7 +266,7 @@ def make_patches(
     return Patches(origin[order], radius[order], idx[order], mask[order])
 
 
-def lookup_grid(origin: np.ndarray, radius: np.ndarray, cell_factor: float = 0.25):
+def lookup_grid(origin: np.ndarray, radius: np.ndarray, cell_factor: float = 0.5):
     """Cells -> candidate patches: (grid_lo, cell_size, dims, cell_row, table). `table` row 0 is
     empty (only the dummy patch, index P); every cell that some ball meets has its own row."""
     n_p, dim = origin.shape
@@ -277,6 +307,26 @@ def lookup_grid(origin: np.ndarray, radius: np.ndarray, cell_factor: float = 0.2
     return glo, cs, tuple(int(d) for d in dims), cell_row, table
 
 
+def _flat(cov: Array) -> Array:
+    """Whether the points of covariance `cov` (d, d) are (nearly) coplanar or collinear: det(cov)
+    below 1e-10 (trace / d)^d, i.e. the smallest eigenvalue below about 1e-10 of the others.
+    Closed forms in 2-D and 3-D (an eigensolver would double the batch's compile time)."""
+    d = cov.shape[0]
+    tr = jnp.maximum(jnp.trace(cov) / d, 1e-300)
+    if d == 2:
+        det = cov[0, 0] * cov[1, 1] - cov[0, 1] * cov[1, 0]
+    elif d == 3:
+        det = (
+            cov[0, 0] * (cov[1, 1] * cov[2, 2] - cov[1, 2] * cov[2, 1])
+            - cov[0, 1] * (cov[1, 0] * cov[2, 2] - cov[1, 2] * cov[2, 0])
+            + cov[0, 2] * (cov[1, 0] * cov[2, 1] - cov[1, 1] * cov[2, 0])
+        )
+    else:
+        ev = jnp.linalg.eigvalsh(cov)
+        return ev[0] <= 1e-10 * jnp.maximum(ev[-1], 1e-300)
+    return det <= 1e-10 * tr**d
+
+
 @eqx.filter_jit
 def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
     """Local saddle-system solves for a batch of padded patches (vmap). Returns weights, coeffs
@@ -297,8 +347,7 @@ def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
             w = keep.astype(x.dtype)[:, None]
             mean = jnp.sum(local * w, axis=0) / jnp.maximum(jnp.sum(w), 1.0)
             cov = ((local - mean) * w).T @ ((local - mean) * w)
-            ev = jnp.linalg.eigvalsh(cov)
-            flat = ev[0] <= 1e-10 * jnp.maximum(ev[-1], 1e-300)
+            flat = _flat(cov)
             cols = jnp.concatenate([jnp.array([True]), jnp.full((k - 1,), ~flat)])
             p = p * cols[None, :]
             corner = jnp.diag(~cols).astype(x.dtype)
@@ -347,7 +396,8 @@ def fit_patches(
     weights = np.zeros((n_p + 1, m))
     coeffs = np.zeros((n_p + 1, k))
     worst = 0.0
-    batch = pad_to_devices(min(BATCH, n_p))
+    # one batch size for every level (a level with fewer patches is padded): fewer compilations
+    batch = pad_to_devices(BATCH)
     with _progress(n_p, desc, verbose) as bar:
         for start in range(0, n_p, batch):
             sel = np.arange(start, start + batch)
@@ -390,12 +440,20 @@ def fit_partition(
     seed: int = 0,
     verbose: bool = False,
     level: int = 0,
+    surface: tuple[np.ndarray, np.ndarray] | None = None,
 ):
     """The partition-of-unity model of constraints `xw` with values `h`, both in the user's units
     (as are `kernel`'s radius and `smoothing`); `shift` and `scale` map them into the unit box.
 
     Recursive: the fallback is the same construction on a 1/`COARSENING` subsample, down to
-    `BASE_SIZE` constraints, which get one global fit (`jaxrbf.fit`)."""
+    `BASE_SIZE` constraints, which get one global fit (`jaxrbf.fit`).
+
+    Coarser levels of surface constraints (on-surface points with value 0 and off-surface points
+    along their normals, as `Constraints.from_points` builds them) are rebuilt from a subsample
+    of the surface points (`surface`: points and normals, recovered from the constraints at the
+    top) with an offset of `COARSE_OFFSET_SPACINGS` of that level's own point spacing: the fine level's small offset, kept on a sparse subsample,
+    leaves a fallback whose zero set strays far from the data (measured: spurious sheets 3% of
+    the diagonal away on the fandisk). Other constraints are subsampled as they are."""
     from ._fit import fit
 
     leaf = LEAF if leaf is None else leaf
@@ -404,11 +462,12 @@ def fit_partition(
     t0 = time.perf_counter()
     if n <= base_size:
         # The coarsest fallback only has to give the right sign away from the data, so it is
-        # always the robust polyharmonic fit (r^3 in 3-D, r^2 log r in 2-D, CG), whatever the
+        # always the robust polyharmonic fit (r^3 in 3-D, r^2 log r in 2-D; LU, which compiles in a
+        # third of the time CG takes at this size), whatever the
         # patches use: a Gaussian base would be as ill-conditioned as a dense Gaussian fit.
         base_kernel = "cubic" if xw.shape[1] == 3 else "thin-plate"
         base = fit(
-            xw, h, kernel=base_kernel, degree=1, smoothing=smoothing, solver="cg", method="dense"
+            xw, h, kernel=base_kernel, degree=1, smoothing=smoothing, solver="lu", method="dense"
         )
         if verbose:
             log(
@@ -417,10 +476,20 @@ def fit_partition(
             )
         return base
     rng = np.random.default_rng(seed + level)
-    sub = np.sort(rng.choice(n, max(base_size // 2, n // COARSENING), replace=False))
+    if level == 0 and surface is None:
+        surface = surface_of(xw, h)
+    keep = 0 if surface is None else max(base_size // 6, len(surface[0]) // COARSENING)
+    if keep >= COARSE_SURFACE_MIN:
+        ps, ns = surface
+        pick = np.sort(rng.choice(len(ps), min(keep, len(ps)), replace=False))
+        coarse_surface = (ps[pick], ns[pick])
+        xc, hc = coarse_constraints(*coarse_surface)
+    else:
+        sub = np.sort(rng.choice(n, max(base_size // 2, n // COARSENING), replace=False))
+        coarse_surface, xc, hc = None, xw[sub], h[sub]
     background = fit_partition(
-        xw[sub],
-        h[sub],
+        xc,
+        hc,
         kernel=kernel,
         degree=degree,
         smoothing=smoothing,
@@ -431,6 +500,7 @@ def fit_partition(
         seed=seed,
         verbose=verbose,
         level=level + 1,
+        surface=coarse_surface,
     )
     t0 = time.perf_counter()
     xn = (xw - shift) / scale
@@ -480,6 +550,45 @@ def fit_partition(
     return model
 
 
+def surface_of(xw: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The surface points and unit normals behind surface constraints (value 0 on the surface,
+    +/- d at p +/- d n, each off-surface point nearest its own origin, as validated by
+    `Constraints.from_points`), or None when `xw`, `h` do not look like that (plain scattered
+    data): fewer than a fifth of the values zero, or off-surface points whose nearest surface
+    point is not at distance |h|."""
+    from scipy.spatial import cKDTree
+
+    on = h == 0
+    if on.sum() < 0.2 * len(h) or on.all():
+        return None
+    p, off, hv = xw[on], xw[~on], h[~on]
+    dist, idx = cKDTree(p).query(off, workers=-1)
+    partner = np.abs(dist - np.abs(hv)) <= 1e-6 * np.abs(hv)
+    if partner.mean() < 0.9:
+        return None
+    direction = np.sign(hv)[partner, None] * (off[partner] - p[idx[partner]])
+    direction /= np.maximum(dist[partner], 1e-300)[:, None]
+    normals = np.zeros_like(p)
+    np.add.at(normals, idx[partner], direction)
+    length = np.linalg.norm(normals, axis=1)
+    has = length > 0.5  # a point with opposite partners that cancel has no usable normal
+    return p[has], normals[has] / length[has, None]
+
+
+def coarse_constraints(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Constraints of a coarse level: `points` and validated off-surface points at
+    `COARSE_OFFSET_SPACINGS` median spacings of `points`, shrunk where they would come nearer
+    another part of the surface (the validation of `Constraints.from_points`)."""
+    from scipy.spatial import cKDTree
+
+    from ._constraints import Constraints
+
+    dist, _ = cKDTree(points).query(points, k=2, workers=-1)
+    spacing = float(np.median(dist[:, 1]))
+    c = Constraints.from_points(points, normals, COARSE_OFFSET_SPACINGS * spacing)
+    return np.asarray(c.points), np.asarray(c.values)
+
+
 def constraint_residual(
     model: AbstractModel, xw: np.ndarray, h: np.ndarray, sample: int = 50_000, seed: int = 0
 ) -> float:
@@ -505,3 +614,211 @@ def check_memory(n: int, dim: int, leaf: int = LEAF) -> None:
             f"the partition-of-unity fit of {n:,} constraints needs about {need / 2**30:.1f} GiB "
             f"but {avail / 2**30:.1f} GiB is available; use fewer points"
         )
+
+
+# --- bulk evaluation (host-driven, patch by patch) ----------------------------------------------
+
+#: Points per row of the bulk evaluator: one row is one patch and up to this many of its points.
+ROW_POINTS = 32
+#: Rows per compiled call of the bulk evaluator.
+ROW_BATCH = 512
+#: Points per host chunk of the bulk evaluator (bounds its pair lists).
+BULK_CHUNK = 2**17
+#: Concrete point sets at least this large are evaluated by the bulk evaluator.
+BULK_MIN = 4096
+
+_host_cache: dict[int, tuple] = {}
+
+
+class _Host(NamedTuple):
+    """Host (numpy) copies of a model's patch arrays, for the bulk evaluator."""
+
+    origin: np.ndarray
+    radius: np.ndarray
+    centres: np.ndarray
+    weights: np.ndarray
+    coeffs: np.ndarray
+    widths: np.ndarray  # each patch's number of real centres (they come first in its row)
+    cell_row: np.ndarray
+    table: np.ndarray
+    grid_lo: np.ndarray
+    cell_size: float
+    balls: np.ndarray  # (P + 1, d + 1): origin and squared radius, one gather per candidate
+
+
+def _host(model: PartitionModel) -> _Host:
+    """The model's `_Host` arrays, cached per model (keyed on its weights array)."""
+    key = id(model.weights)
+    hit = _host_cache.get(key)
+    if hit is not None and hit[0] is model.weights:
+        return hit[1]
+    weights = np.asarray(model.weights)
+    nz = weights != 0
+    widths = np.where(nz.any(axis=1), nz.shape[1] - np.argmax(nz[:, ::-1], axis=1), 0)
+    host = _Host(
+        np.asarray(model.origin),
+        np.asarray(model.radius),
+        np.asarray(model.centres),
+        weights,
+        np.asarray(model.coeffs),
+        widths,
+        np.asarray(model.cell_row),
+        np.asarray(model.table),
+        np.asarray(model.grid_lo),
+        float(model.cell_size),
+        np.concatenate([np.asarray(model.origin), np.asarray(model.radius)[:, None] ** 2], 1),
+    )
+    if len(_host_cache) > 16:
+        _host_cache.clear()
+    _host_cache[key] = (model.weights, host)
+    return host
+
+
+def _covering(host: _Host, dims: tuple[int, ...], xn: np.ndarray):
+    """(point, patch) pairs with the point inside the patch's ball, sorted by patch."""
+    cell = np.floor((xn - host.grid_lo) / host.cell_size).astype(np.int64)
+    cell = np.clip(cell, 0, np.asarray(dims) - 1)
+    pids = host.table[host.cell_row[np.ravel_multi_index(tuple(cell.T), dims)]]
+    ball = host.balls[pids]  # (b, K, d + 1): centre and squared radius
+    diff = xn[:, None, :] - ball[..., :-1]
+    d2 = np.einsum("bkd,bkd->bk", diff, diff)
+    pt, slot = np.nonzero(d2 < ball[..., -1])
+    patch = pids[pt, slot]
+    order = np.argsort(patch, kind="stable")
+    return pt[order], patch[order]
+
+
+@eqx.filter_jit
+def _rows(kernel, degree: int, xr, c, wt, o, r, cf, grad: bool):
+    """Blend terms psi_i f_i and psi_i (and their gradients) for rows of (patch, points): xr
+    (R, S, d) normalised points; c (R, w, d), wt (R, w), o (R, d), r (R,), cf (R, k): each
+    row's patch centres, weights, ball and polynomial coefficients."""
+    n_rows, s, dim = xr.shape
+    width = c.shape[1]
+    r2 = jnp.zeros((n_rows, s, width), dtype=xr.dtype)
+    for k in range(dim):
+        r2 = r2 + (xr[:, :, None, k] - c[:, None, :, k]) ** 2
+    u = (xr - o[:, None, :]) / r[:, None, None]
+    t2 = jnp.sum(u * u, axis=-1)
+    poly = poly_basis(u.reshape(-1, dim), degree).reshape(n_rows, s, -1)
+    if not grad:
+        local = jnp.einsum("rsw,rw->rs", kernel.from_r2(r2), wt)
+        local = local + jnp.einsum("rsk,rk->rs", poly, cf)
+        psi = wendland_weight(t2)
+        return psi * local, psi
+    # Gradients by hand, from d phi / d r^2 (one forward-mode pass over the elementwise kernel):
+    # grad f_i = 2 sum_j w_j phi'(r_j^2) (x - c_j) + grad of the polynomial.
+    phi, dphi = jax.jvp(kernel.from_r2, (r2,), (jnp.ones_like(r2),))
+    local = jnp.einsum("rsw,rw->rs", phi, wt) + jnp.einsum("rsk,rk->rs", poly, cf)
+    a = dphi * wt[:, None, :]
+    glocal = 2.0 * (jnp.sum(a, axis=-1)[..., None] * xr - jnp.einsum("rsw,rwd->rsd", a, c))
+    if degree >= 1:
+        glocal = glocal + cf[:, None, 1:] / r[:, None, None]
+    psi, dpsi = jax.jvp(wendland_weight, (t2,), (jnp.ones_like(t2),))
+    gpsi = (2.0 * dpsi)[..., None] * u / r[:, None, None]
+    return psi * local, psi, gpsi * local[..., None] + psi[..., None] * glocal, gpsi
+
+
+def _pad_pow2(x: np.ndarray, least: int = 1024) -> np.ndarray:
+    """`x` padded with copies of its first row to a power of two of rows (few compilations)."""
+    n = len(x)
+    size = max(least, 1 << max(n - 1, 0).bit_length())
+    return np.concatenate([x, np.broadcast_to(x[:1], (size - n,) + x.shape[1:])])
+
+
+def _blend_sums(model: PartitionModel, xn: np.ndarray, grad: bool):
+    """sum_i psi_i f_i and sum_i psi_i (and gradients, normalised units) at points `xn` (b, d),
+    evaluated patch by patch: the (point, patch) pairs are grouped by patch into rows of
+    `ROW_POINTS` points, so each row reads its patch's centres once."""
+    from ._sharding import pad_to_devices, split_over_devices
+
+    b, dim = xn.shape
+    host = _host(model)
+    pt, patch = _covering(host, model.grid_dims, xn)
+    num, den = np.zeros(b), np.zeros(b)
+    gnum, gden = (np.zeros((b, dim)), np.zeros((b, dim))) if grad else (None, None)
+    if len(pt) == 0:
+        return num, den, gnum, gden
+    first = np.flatnonzero(np.r_[True, patch[1:] != patch[:-1]])
+    count = np.diff(np.r_[first, len(patch)])
+    per = -(-count // ROW_POINTS)
+    row_start = np.r_[0, np.cumsum(per)[:-1]]
+    pos = np.arange(len(pt)) - np.repeat(first, count)
+    row = np.repeat(row_start, count) + pos // ROW_POINTS
+    n_rows = int(per.sum())
+    members = np.full((n_rows, ROW_POINTS), b, dtype=np.int64)
+    members[row, pos % ROW_POINTS] = pt
+    row_patch = np.repeat(patch[first], per)
+    # far away from every ball: the padding rows and points weigh nothing
+    xpad = np.concatenate([xn, np.full((1, dim), 1e6)])
+    batch = pad_to_devices(ROW_BATCH)
+    dummy = model.n_patches
+    m = host.centres.shape[1]
+    for s0 in range(0, n_rows, batch):
+        sel = np.arange(s0, s0 + batch)
+        real = sel < n_rows
+        sel = np.minimum(sel, n_rows - 1)
+        rp = np.where(real, row_patch[sel], dummy)
+        mem = np.where(real[:, None], members[sel], b)
+        width = min(m, max(32, -(-int(host.widths[rp].max()) // 32) * 32))
+        args = (
+            xpad[mem],
+            host.centres[rp, :width],
+            host.weights[rp, :width],
+            host.origin[rp],
+            host.radius[rp],
+            host.coeffs[rp],
+        )
+        out = split_over_devices(lambda *a: _rows(model.kernel, model.degree, *a, grad), *args)
+        flat = mem.ravel()
+        num += np.bincount(flat, out[0].ravel(), minlength=b + 1)[:b]
+        den += np.bincount(flat, out[1].ravel(), minlength=b + 1)[:b]
+        if grad:
+            for k in range(dim):
+                gnum[:, k] += np.bincount(flat, out[2][..., k].ravel(), minlength=b + 1)[:b]
+                gden[:, k] += np.bincount(flat, out[3][..., k].ravel(), minlength=b + 1)[:b]
+    return num, den, gnum, gden
+
+
+def evaluate_many(model: PartitionModel, points, grad: bool = False):
+    """f (and, with `grad`, grad f in the user's units) at many concrete points `points` (n, d),
+    in the user's units, as numpy arrays (float64).
+
+    The same function as `model(points)` and `model.gradient(points)`, computed the other way
+    round: instead of every point gathering the centres of every candidate patch, every patch
+    evaluates the points inside its ball (rows of `ROW_POINTS` points that read the patch's
+    centres once), and the terms are summed per point on the host. Several times faster on large
+    point sets (grids, bands); results agree with the gathered evaluation to rounding."""
+    x = np.asarray(points, dtype=float)
+    n, dim = x.shape
+    scale, shift = float(model.scale), np.asarray(model.shift)
+    vals = np.empty(n)
+    grads = np.empty((n, dim)) if grad else None
+    bg = model.background
+    for s0 in range(0, n, BULK_CHUNK):
+        xw = x[s0 : s0 + BULK_CHUNK]
+        num, den, gnum, gden = _blend_sums(model, (xw - shift) / scale, grad)
+        short = np.maximum(1.0 - den / TAU, 0.0)
+        w0 = TAU * short * short
+        need = np.flatnonzero(w0 > 0)
+        g = np.zeros(len(xw))
+        gg = np.zeros((len(xw), dim)) if grad else None
+        if len(need):
+            if isinstance(bg, PartitionModel):
+                g[need], gsub = evaluate_many(bg, xw[need], grad)
+            else:
+                xq = jnp.asarray(_pad_pow2(xw[need]))
+                g[need] = np.asarray(bg(xq))[: len(need)]
+                gsub = np.asarray(bg.gradient(xq))[: len(need)] if grad else None
+            if grad:
+                gg[need] = gsub * scale  # normalised units, like gnum and gden
+        top = num + w0 * g
+        bottom = den + w0
+        f = top / bottom
+        vals[s0 : s0 + len(xw)] = f
+        if grad:
+            dw0 = (-2.0 * short)[:, None] * gden
+            dtop = gnum + w0[:, None] * gg + g[:, None] * dw0
+            dbottom = gden + dw0
+            grads[s0 : s0 + len(xw)] = (dtop - f[:, None] * dbottom) / bottom[:, None] / scale
+    return vals, grads

@@ -20,6 +20,16 @@ from ._fit import _available_memory
 from ._project import project as _project
 
 _CHUNK = 2**15
+#: Points per call of an implicit's own bulk evaluator (see `_bulk`).
+_BULK_CHUNK = 2**17
+
+
+def _bulk(implicit):
+    """The implicit's host-level evaluator `evaluate_many(points, grad) -> (f, grad f or None)`
+    (numpy in, numpy out) where it has one, else None. Partition-of-unity models have one: it
+    evaluates patch by patch, several times faster than gathering every point's patches."""
+    fn = getattr(implicit, "evaluate_many", None)
+    return fn if callable(fn) else None
 
 
 def _bounds(implicit, bounds, dim: int | None, padding: float):
@@ -89,13 +99,19 @@ def sample_grid(
     spacing, shape = _grid_shape(np.asarray(lo, float), np.asarray(hi, float), resolution)
     total = int(np.prod(shape))
     out = np.empty(total)
-    n_chunks = -(-total // _CHUNK)
+    bulk = _bulk(implicit)
+    chunk = _BULK_CHUNK if bulk else _CHUNK
+    n_chunks = -(-total // chunk)
     disable = (not sys.stderr.isatty()) if progress is None else not progress
     lo_j, h_j = jnp.asarray(lo, dtype=float), jnp.asarray(spacing)
     for c in tqdm(range(n_chunks), desc=desc, unit="chunk", disable=disable, file=sys.stderr):
-        start = c * _CHUNK
-        vals = np.asarray(_eval_chunk(implicit, lo_j, h_j, shape, jnp.asarray(start), _CHUNK))
-        end = min(start + _CHUNK, total)
+        start = c * chunk
+        end = min(start + chunk, total)
+        if bulk:
+            ijk = np.stack(np.unravel_index(np.arange(start, end), shape), axis=1)
+            out[start:end] = bulk(np.asarray(lo, float) + ijk * spacing)[0]
+            continue
+        vals = np.asarray(_eval_chunk(implicit, lo_j, h_j, shape, jnp.asarray(start), chunk))
         out[start:end] = vals[: end - start]
     out = out.reshape(shape)
     bad = ~np.isfinite(out)
@@ -264,12 +280,17 @@ def _value_distance(implicit, lo, spacing, ijk, level, disable, desc):
     total = len(ijk)
     vals, dist = np.empty(total), np.empty(total)
     lo_j, h_j = jnp.asarray(lo, dtype=float), jnp.asarray(spacing)
+    bulk = _bulk(implicit)
+    chunk = _BULK_CHUNK if bulk else _CHUNK
     for start in tqdm(
-        range(0, total, _CHUNK), desc=desc, unit="chunk", disable=disable, file=sys.stderr
+        range(0, total, chunk), desc=desc, unit="chunk", disable=disable, file=sys.stderr
     ):
-        end = min(start + _CHUNK, total)
-        f, g = _eval_points_grad(implicit, lo_j, h_j, _padded(ijk[start:end]))
-        f, g = np.asarray(f)[: end - start], np.asarray(g)[: end - start]
+        end = min(start + chunk, total)
+        if bulk:
+            f, g = bulk(np.asarray(lo, float) + ijk[start:end] * spacing, True)
+        else:
+            f, g = _eval_points_grad(implicit, lo_j, h_j, _padded(ijk[start:end]))
+            f, g = np.asarray(f)[: end - start], np.asarray(g)[: end - start]
         gnorm = np.linalg.norm(g, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):  # inf where grad f = 0
             dist[start:end] = np.where(gnorm == 0, np.inf, np.abs(f - level) / gnorm)
@@ -369,12 +390,12 @@ def _layout(plan: _Plan) -> _Layout:
     return _Layout(owners, slot, inband, local)
 
 
-def _band_batches(layout: _Layout, c: int):
+def _band_batches(layout: _Layout, c: int, chunk: int = _CHUNK):
     """Fixed-size batches of the band's samples: (owner rows, local offsets, global indices)."""
     per = layout.inband.shape[1]
     cum = np.concatenate([[0], np.cumsum(layout.inband.sum(axis=1))])
-    for s0 in range(0, int(cum[-1]), _CHUNK):
-        s1 = min(s0 + _CHUNK, int(cum[-1]))
+    for s0 in range(0, int(cum[-1]), chunk):
+        s1 = min(s0 + chunk, int(cum[-1]))
         a = int(np.searchsorted(cum, s0, "right")) - 1
         b = int(np.searchsorted(cum, s1, "left"))
         flat = np.flatnonzero(layout.inband[a:b])[s0 - cum[a] : s1 - cum[a]]
@@ -402,16 +423,21 @@ def _evaluate_band(implicit, lo, spacing, plan: _Plan, layout: _Layout, disable)
             state["vmax"] = max(state["vmax"], float(v[finite].max()))
         vals[rows, loc] = v
 
+    bulk = _bulk(implicit)
+    chunk = _BULK_CHUNK if bulk else _CHUNK
     pending = None  # one batch in flight: the host prepares the next while the device works
     for rows, loc, ijk in tqdm(
-        _band_batches(layout, plan.c),
-        total=-(-n_band // _CHUNK),
+        _band_batches(layout, plan.c, chunk),
+        total=-(-n_band // chunk),
         desc="meshing: band",
         unit="chunk",
         disable=disable,
         file=sys.stderr,
     ):
-        out = _eval_points(implicit, lo_j, h_j, _padded(ijk))
+        if bulk:
+            out = bulk(np.asarray(lo, float) + ijk * spacing)[0]
+        else:
+            out = _eval_points(implicit, lo_j, h_j, _padded(ijk))
         if pending is not None:
             collect(*pending)
         pending = (rows, loc, out)

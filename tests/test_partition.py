@@ -216,3 +216,71 @@ def test_2d_partition(monkeypatch):
     assert len(curves) == 1
     r = (curves[0][:, 0] / 2) ** 2 + curves[0][:, 1] ** 2
     assert np.max(np.abs(r - 1)) < 0.02
+
+
+def test_bulk_evaluation_matches_gathered(models):
+    """The patch-by-patch evaluator (concrete inputs of >= BULK_MIN points, and polygonize) gives
+    the values and gradients of the gathered evaluation traced under jit: near the surface, in
+    the hand-over to the fallback, and far away where only the fallback is left."""
+    pu, _ = models
+    lo, hi = (np.asarray(a) for a in pu.bounds())
+    rng = np.random.default_rng(3)
+    span = hi - lo
+    x = lo - 0.3 * span + 1.6 * span * rng.random((_partition.BULK_MIN + 1000, 3))
+    gathered = np.asarray(jax.jit(lambda p: pu(p))(jnp.asarray(x)))
+    grad_gathered = np.asarray(jax.jit(lambda p: pu.gradient(p))(jnp.asarray(x)))
+    bulk = np.asarray(pu(x))
+    grad_bulk = np.asarray(pu.gradient(x))
+    den = np.asarray(jax.jit(lambda p: pu.blend(pu.normalise(p))[1])(jnp.asarray(x)))
+    assert (den == 0).any() and ((den > 0) & (den < TAU)).any() and (den > TAU).any()
+    scale = np.abs(gathered).max()
+    assert np.max(np.abs(bulk - gathered)) < 1e-10 * scale
+    gscale = np.abs(grad_gathered).max()
+    assert np.max(np.abs(grad_bulk - grad_gathered)) < 1e-8 * gscale
+    v, g = pu.evaluate_many(x[:50], grad=True)  # below BULK_MIN: the method itself still works
+    assert np.allclose(v, gathered[:50], rtol=0, atol=1e-10 * scale)
+    assert np.allclose(g, grad_gathered[:50], rtol=0, atol=1e-8 * gscale)
+
+
+def test_surface_recovered_from_constraints(torus_constraints):
+    p, n = torus(48, 20)
+    ps, ns = _partition.surface_of(
+        np.asarray(torus_constraints.points), np.asarray(torus_constraints.values)
+    )
+    assert len(ps) == len(p)
+    order = np.lexsort(ps.T)
+    ref = np.lexsort(p.T)
+    assert np.allclose(ps[order], p[ref])
+    unit = n[ref] / np.linalg.norm(n[ref], axis=1, keepdims=True)
+    assert np.min(np.sum(ns[order] * unit, axis=1)) > 0.999
+    # plain scattered data has no surface behind it
+    x = np.random.default_rng(0).random((500, 3))
+    assert _partition.surface_of(x, np.sin(x[:, 0])) is None
+
+
+def test_coarse_levels_rebuilt_with_their_own_offset(monkeypatch):
+    """A coarse level is rebuilt from a subsample of the surface points, with off-surface points
+    at 2 of its own spacings (not the fine level's offset), and the model keeps the right sign
+    away from the data."""
+    rng = np.random.default_rng(1)
+    p = rng.normal(size=(4000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    c = jaxrbf.Constraints.from_points(p * [1.0, 0.8, 0.6], p / [1.0, 0.8, 0.6], 0.004)
+    seen = []
+    real = _partition.coarse_constraints
+
+    def spy(points, normals):
+        x, h = real(points, normals)
+        seen.append((len(points), float(np.max(np.abs(h)))))
+        return x, h
+
+    monkeypatch.setattr(_partition, "coarse_constraints", spy)
+    monkeypatch.setattr(_partition, "COARSE_SURFACE_MIN", 100)
+    monkeypatch.setattr(_partition, "BASE_SIZE", 1500)
+    pu = jaxrbf.fit(c, method="partition")
+    assert seen and seen[0][0] == 500
+    assert seen[0][1] > 5 * 0.004  # a sparser level gets a larger offset
+    far = rng.uniform(-1.5, 1.5, (3000, 3))
+    r = np.linalg.norm(far / [1.0, 0.8, 0.6], axis=1)
+    keep = np.abs(r - 1) > 0.15
+    assert np.all(np.sign(np.asarray(pu(far[keep]))) == np.sign(r[keep] - 1))

@@ -15,10 +15,15 @@ if _os.environ.get("JAXRBF_NO_X64", "") not in ("1", "true", "yes"):
 from importlib.metadata import PackageNotFoundError as _PNF
 from importlib.metadata import version as _version
 
+from . import csg as csg
 from . import io as io
 from . import kernels as kernels
 from . import metrics as metrics
+from . import objectives as objectives
+from . import plot as plot
 from ._constraints import Constraints as Constraints
+from ._constraints import offset_caps as offset_caps
+from ._constraints import surface_constraints as surface_constraints
 from ._errors import InputError as InputError
 from ._errors import JaxRBFError as JaxRBFError
 from ._errors import SolveError as SolveError
@@ -36,6 +41,18 @@ from ._reconstruct import fit_surface as fit_surface
 from ._reconstruct import reconstruct as reconstruct
 from ._serialize import load as load
 from ._serialize import save as save
+from ._tune import TuneReport as TuneReport
+from ._tune import default_offset as default_offset
+from ._tune import default_radius as default_radius
+from ._tune import grid_search as grid_search
+from ._tune import tune as tune
+from .plot import plot_field as plot_field
+from .render import Camera as Camera
+from .render import Rendering as Rendering
+from .render import mean_curvature as mean_curvature
+from .render import mesh_error as mesh_error
+from .render import render as render  # the function; the module stays importable as jaxrbf.render
+from .render import save_png as save_png
 
 try:
     __version__ = _version("jaxrbf")

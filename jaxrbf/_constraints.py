@@ -238,5 +238,78 @@ class Constraints(eqx.Module):
         return line + (f"; {', '.join(extras)}" if extras else "")
 
 
+def offset_caps(points, normals, limit: float, steps: int = 12) -> np.ndarray:
+    """For each surface point, the largest offset in (0, `limit`] that passes the Carr et al.
+    (2001) test (the off-surface point's nearest input point is its own origin), found by
+    bisection on the host; shape (2, n): outside then inside. NaN where even `limit` / 2**steps
+    fails. `surface_constraints` clips the offset to these caps, so that the offset d stays a
+    differentiable parameter while no off-surface point crosses another part of the surface."""
+    from scipy.spatial import cKDTree
+
+    p = as_points(points, "points")
+    nrm = _unit_normals(normals, len(p), p.shape[1])
+    tree = cKDTree(p)
+    own = np.arange(len(p))
+    caps = np.empty((2, len(p)))
+    for row, sign in enumerate((1.0, -1.0)):
+
+        def ok(d, sign=sign):
+            dist, idx = tree.query(p + sign * d[:, None] * nrm, workers=-1)
+            return (idx == own) | (dist >= d * (1 - 1e-9))
+
+        lo = np.zeros(len(p))
+        hi = np.full(len(p), float(limit))
+        good = ok(hi)
+        lo[good] = hi[good]
+        for _ in range(steps):
+            mid = 0.5 * (lo + hi)
+            fine = ok(mid) & ~good
+            lo = np.where(fine, mid, lo)
+            hi = np.where(fine | good, hi, mid)
+        caps[row] = np.where(lo > 0, lo, np.nan)
+    return caps
+
+
+def surface_constraints(points, normals, offset, caps=None) -> Constraints:
+    """Differentiable constraints: the surface points (value 0), p + d_i n (value +d_i) and
+    p - d_i n (value -d_i), with d_i = min(offset, cap_i) — a JAX function of `points`, `normals`
+    and `offset`, so that `fit(surface_constraints(...))` can be differentiated with respect to
+    all three (the host `Constraints.from_points` cannot: its validation is a discrete loop).
+
+    **Arguments:**
+    - `points`, `normals`: (n, d) surface points and outward normals (normalised here).
+    - `offset`: d, a scalar in the points' units (may be traced).
+    - `caps`: (2, n) per-point largest offsets from `offset_caps` (computed on the host, held
+      fixed); points with a NaN cap get no off-surface point on that side. None: no clipping.
+
+    **Returns:** `Constraints` (n surface points first, then outside, then inside).
+    """
+    p = jnp.asarray(points, dtype=float)
+    nrm = jnp.asarray(normals, dtype=float)
+    nrm = nrm / jnp.linalg.norm(nrm, axis=1, keepdims=True)
+    d = jnp.asarray(offset, dtype=float)
+    parts_p, parts_v = [p], [jnp.zeros(p.shape[0], dtype=p.dtype)]
+    for row, sign in enumerate((1.0, -1.0)):
+        if caps is None:
+            keep = np.ones(p.shape[0], dtype=bool)
+            di = jnp.broadcast_to(d, (p.shape[0],))
+        else:
+            cap = np.asarray(caps)[row]
+            keep = np.isfinite(cap)
+            di = jnp.minimum(d, jnp.asarray(cap[keep]))
+        if caps is None:
+            pk, nk = p, nrm
+        else:
+            pk, nk = p[keep], nrm[keep]
+        parts_p.append(pk + sign * di[:, None] * nk)
+        parts_v.append(sign * di)
+    return Constraints(
+        jnp.concatenate(parts_p),
+        jnp.concatenate(parts_v),
+        n_surface=int(p.shape[0]),
+        n_dropped=2 * int(p.shape[0]) - (len(parts_v[1]) + len(parts_v[2])),
+    )
+
+
 def log(msg: str) -> None:
     print(f"jaxrbf: {msg}", file=sys.stderr, flush=True)

@@ -154,12 +154,34 @@ def fit(
     **Raises:** `InputError` for unusable input (with what was expected), `SolveError` when the
     system is singular or the solution does not reproduce the constraints.
 
+    Differentiable: when any of `points`, `values`, `radius`, `smoothing` (or a kernel's radius)
+    is a JAX tracer (`jax.grad`, `jax.jvp`, `jax.jit`, an optimistix solve), `fit` takes a traced
+    path (`jaxrbf._difffit`): the dense method with `lu` or `cholesky` (differentiated by
+    `lineax.linear_solve`, no hand-written adjoint), or `partition` (differentiable in the values,
+    radius and smoothing; its points must be concrete). The host-only checks (NaN, duplicates,
+    coplanar points) are skipped there; the residual check runs where the values are concrete
+    and is compiled in (`equinox.error_if`) under `jit`.
+
     Precision: float64 throughout (see `jaxrbf._solve`).
     """
     if not jax.config.jax_enable_x64:
         raise InputError(
             "fit needs JAX's 64-bit mode, which was turned off after importing jaxrbf; "
             "call jax.config.update('jax_enable_x64', True)"
+        )
+    if is_traced(points, values, kernel, radius, smoothing):
+        from ._difffit import fit_traced
+
+        return fit_traced(
+            points,
+            values,
+            kernel=kernel,
+            degree=degree,
+            smoothing=smoothing,
+            solver=solver,
+            radius=radius,
+            method=method,
+            seed=seed,
         )
     x, h = points_and_values(points, values)
     if method not in METHODS:
@@ -268,23 +290,7 @@ def fit(
             "cg": f", {steps} CG iterations",
         }.get(solver, "")
         log(f"solved in {time.perf_counter() - t0:.2f} s; relative residual {residual:.2e}{extra}")
-    if not finite or not np.isfinite(residual):
-        raise SolveError(
-            f"the {solver} solve produced NaN or infinite weights: the system is singular "
-            "(duplicate or degenerate points, or a kernel radius far too large); "
-            "try smoothing > 0 or another kernel"
-        )
-    if residual > RESIDUAL_TOL:
-        unit = "restart cycles" if solver == "gmres" else "iterations"
-        why = (
-            f"{solver} stopped after {steps} {unit} without converging"
-            if solver in ("cg", "gmres") and not bool(sol.ok)
-            else "the system is nearly singular"
-        )
-        raise SolveError(
-            f"the fit does not reproduce its constraints: relative residual {residual:.2e} > "
-            f"{RESIDUAL_TOL:.0e} ({why}); try solver='lu', smoothing > 0, or fewer/cleaner points"
-        )
+    check_solution(residual, finite, solver, steps, bool(sol.ok))
     return RBFModel(
         centres=jnp.asarray(xn),
         weights=sol.weights,
@@ -295,6 +301,34 @@ def fit(
         residual=jnp.asarray(residual),
         degree=degree,
     )
+
+
+def is_traced(*trees) -> bool:
+    """Whether any array leaf of `trees` is a JAX tracer (under `jit`, `grad`, `vmap`): then `fit`
+    takes its traced, differentiable path (`jaxrbf._difffit`)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
+
+
+def check_solution(residual: float, finite: bool, solver: str, steps: int, ok: bool) -> None:
+    """Raise `SolveError` when a dense solve produced NaN, or does not reproduce its constraints
+    (relative residual above `RESIDUAL_TOL`)."""
+    if not finite or not np.isfinite(residual):
+        raise SolveError(
+            f"the {solver} solve produced NaN or infinite weights: the system is singular "
+            "(duplicate or degenerate points, or a kernel radius far too large); "
+            "try smoothing > 0 or another kernel"
+        )
+    if residual > RESIDUAL_TOL:
+        unit = "restart cycles" if solver == "gmres" else "iterations"
+        why = (
+            f"{solver} stopped after {steps} {unit} without converging"
+            if solver in ("cg", "gmres") and not ok
+            else "the system is nearly singular"
+        )
+        raise SolveError(
+            f"the fit does not reproduce its constraints: relative residual {residual:.2e} > "
+            f"{RESIDUAL_TOL:.0e} ({why}); try solver='lu', smoothing > 0, or fewer/cleaner points"
+        )
 
 
 #: A partition-of-unity fit interpolates every constraint its patches hold (to ~1e-11); a patch

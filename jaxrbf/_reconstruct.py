@@ -21,8 +21,6 @@ from ._prepare import check_not_flat, diagonal
 #: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
 #: 2-core CPU. Larger inputs are subsampled to this unless `points` says otherwise.
 DEFAULT_POINTS = 4000
-#: Default kernel radius (kernels that have one), as a fraction of the diagonal.
-DEFAULT_RADIUS = 0.1
 EXAMPLES = ("bunny",)
 #: With the partition method, the default offset is at most this many median point spacings.
 PARTITION_OFFSET_SPACINGS = 2.0
@@ -149,7 +147,9 @@ def fit_surface(
     """Constraints from `source` (see `constraints_from`), then `fit`.
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper;
-    `radius` (kernels that have one) is a fraction of the diagonal, default 0.1.
+    `radius` (kernels that have one) is a fraction of the diagonal; by default it is set from
+    the point spacing (`jaxrbf.default_radius`: 2 median nearest-neighbour spacings of the
+    surface samples for the Gaussian and the multiquadrics, 8 for Wendland).
     `method` as for `fit` (`auto`: one dense system up to 15,000 unknowns, a partition of unity
     beyond). For the dense and global methods `solver` defaults to `cg` (Schwarz-preconditioned
     conjugate gradients: 3-4x faster than a dense solve at 12,000 constraints) except for the
@@ -176,8 +176,13 @@ def fit_surface(
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
     r = None
     if cls.has_radius and not isinstance(kernel, AbstractKernel):
+        from ._tune import default_radius
+
         surface = np.asarray(c.points[: c.n_surface])
-        r = (DEFAULT_RADIUS if radius is None else float(radius)) * diagonal(surface)
+        if radius is None:
+            r = default_radius(cls.name, surface)
+        else:
+            r = float(radius) * diagonal(surface)
     elif radius is not None:
         raise InputError(f"the {cls.name} kernel has no radius; leave --radius unset")
     method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)

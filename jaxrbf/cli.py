@@ -12,6 +12,8 @@ import os
 import sys
 import time
 
+import numpy as np
+
 from .io import MESH_OUTPUTS as MESH_OUT
 from .io import POLYLINE_OUTPUTS as CURVE_OUT
 
@@ -47,7 +49,8 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--radius",
         type=float,
-        help="kernel radius, fraction of the bounding-box diagonal (default 0.1)",
+        help="kernel radius, fraction of the bounding-box diagonal (default: from the point "
+        "spacing, 2 median spacings for gaussian and the multiquadrics, 8 for wendland)",
     )
     g.add_argument(
         "--offset",
@@ -80,6 +83,69 @@ def _mesh_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--project", action="store_true", help="Newton-project vertices onto f = 0")
 
 
+def _tune_options(p: argparse.ArgumentParser) -> None:
+    from .kernels import KERNELS
+
+    g = p.add_argument_group("tuning")
+    g.add_argument(
+        "--points", type=int, help="surface samples (default 2000; every fit is a dense solve)"
+    )
+    g.add_argument("--sampling", choices=("faces", "vertices"), default="faces")
+    g.add_argument(
+        "--kernel", choices=list(KERNELS), help="default: cubic in 3-D, thin-plate in 2-D"
+    )
+    g.add_argument(
+        "--params",
+        nargs="+",
+        choices=("offset", "radius", "smoothing"),
+        help="what to tune (default: offset, and radius for kernels with one)",
+    )
+    g.add_argument(
+        "--objective",
+        choices=("held-out", "kfold", "loocv"),
+        default="held-out",
+        help="held-out error (default), 5-fold error, or Rippa's leave-one-out error",
+    )
+    g.add_argument(
+        "--optimizer",
+        choices=("bfgs", "lm"),
+        default="bfgs",
+        help="optimistix BFGS (default) or Levenberg-Marquardt",
+    )
+    g.add_argument("--max-steps", type=int, default=7, help="optimiser steps (default 7)")
+    g.add_argument("--radius", type=float, help="starting radius, fraction of the diagonal")
+    g.add_argument("--offset", type=float, help="starting offset, fraction of the diagonal")
+    g.add_argument(
+        "--smoothing", type=float, default=0.0, help="lambda (the start, if tuned; default 0)"
+    )
+    g.add_argument("--degree", type=int, choices=(-1, 0, 1), default=1)
+    g.add_argument("--seed", type=int, default=0, help="seed of the surface sampling")
+
+
+def _tuned(source, args, **extra):
+    """`tune_surface` on the CLI's options: (model, report)."""
+    import optimistix as optx
+
+    from ._tune import tune_surface
+
+    solver = optx.LevenbergMarquardt(rtol=1e-3, atol=1e-3) if extra.pop("lm", False) else None
+    return tune_surface(
+        source[0],
+        source[1],
+        kernel=args.kernel,
+        offset=args.offset,
+        radius=args.radius,
+        smoothing=args.smoothing,
+        degree=args.degree,
+        points=args.points,
+        sampling=args.sampling,
+        seed=args.seed,
+        solver=solver,
+        verbose=not args.quiet,
+        **extra,
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -107,6 +173,17 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--example", choices=("bunny",), help="use the bundled example instead of INPUT")
     _fit_options(r)
     _mesh_options(r)
+    r.add_argument(
+        "--preview",
+        metavar="VIEW.png",
+        help="also ray-march a 512x512 picture of the surface (3-D) to this PNG",
+    )
+    r.add_argument(
+        "--tune",
+        action="store_true",
+        help="choose the offset (and the kernel radius) by minimising the held-out error first "
+        "(see `jaxrbf tune`; dense fit of --points samples, default 2000)",
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
     f = sub.add_parser("fit", help="input file -> model (.npz)")
@@ -121,6 +198,33 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("-o", "--output", required=True)
     _mesh_options(m)
     m.add_argument("-q", "--quiet", action="store_true")
+
+    v = sub.add_parser("render", help="model (.npz) -> ray-marched picture (.png)")
+    v.add_argument("model")
+    v.add_argument("-o", "--output", required=True, help="picture (.png)")
+    v.add_argument(
+        "--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"), help="default 512 512"
+    )
+    v.add_argument(
+        "--azimuth", type=float, default=30.0, help="degrees about the up axis (default 30)"
+    )
+    v.add_argument(
+        "--elevation", type=float, default=20.0, help="degrees above the horizon (default 20)"
+    )
+    v.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z"), default="y", help="default y")
+    v.add_argument("--fov", type=float, default=35.0, help="vertical field of view (default 35)")
+    v.add_argument("--shadows", action="store_true", help="cast shadows from the key light")
+    v.add_argument("--occlusion", action="store_true", help="ambient occlusion")
+    v.add_argument("-q", "--quiet", action="store_true")
+
+    t = sub.add_parser(
+        "tune", help="input file -> model (.npz) with the offset and kernel radius tuned"
+    )
+    t.add_argument("input", nargs="?")
+    t.add_argument("-o", "--output", required=True, help="model file (.npz)")
+    t.add_argument("--example", choices=("bunny",), help="use the bundled example instead of INPUT")
+    _tune_options(t)
+    t.add_argument("-q", "--quiet", action="store_true")
 
     e = sub.add_parser("evaluate", help="compare a mesh with a reference mesh")
     e.add_argument("mesh")
@@ -198,6 +302,41 @@ def _write_surface(model, args) -> None:
         log(f"wrote {args.output}: {what} ({time.perf_counter() - t0:.1f} s)")
 
 
+def _write_picture(model, path: str, args) -> None:
+    """Ray-march `model` to the PNG `path` (camera options from `args` where it has them)."""
+    from ._constraints import log
+    from ._errors import InputError
+    from .render import Camera, render
+
+    if model.dim != 3:
+        raise InputError(f"render draws 3-D models; '{path}' would show a {model.dim}-D one")
+    t0 = time.perf_counter()
+    lo, hi = (np.asarray(b, dtype=float) for b in model.bounds())
+    pad = 0.02 * float((hi - lo).max())
+    camera = Camera.orbit(
+        (lo - pad, hi + pad),
+        getattr(args, "azimuth", 30.0),
+        getattr(args, "elevation", 20.0),
+        up=getattr(args, "up", "y"),
+        fov=getattr(args, "fov", 35.0),
+        size=tuple(getattr(args, "size", (512, 512))),
+    )
+    picture = render(
+        model,
+        camera,
+        shadows=getattr(args, "shadows", False),
+        ambient_occlusion=getattr(args, "occlusion", False),
+        progress=None if args.quiet else True,
+    )
+    picture.save(path)
+    if not args.quiet:
+        st = picture.stats
+        log(
+            f"wrote {path}: {camera.width}x{camera.height}, {st['hits']:,} surface pixels "
+            f"({time.perf_counter() - t0:.1f} s)"
+        )
+
+
 def _out_kinds(source) -> tuple[str, ...]:
     """Allowed output extensions for reconstruct: curves for 2-D input, meshes otherwise."""
     if isinstance(source, tuple) and source[1] is not None:
@@ -215,8 +354,22 @@ def _run(args) -> int:
     if args.command == "reconstruct":
         source = _source(args)
         _check_output(args.output, _out_kinds(source))
-        model = fit_surface(source[0], source[1], **_fit_kwargs(args))
+        if args.preview:
+            _check_output(args.preview, (".png",))
+        if args.tune:
+            from ._errors import InputError
+
+            if args.method not in ("auto", "dense") or args.solver not in (None, "lu", "cholesky"):
+                raise InputError(
+                    "--tune fits one dense system per step: use it with --method dense (or auto) "
+                    "and --solver lu or cholesky (or none)"
+                )
+            model, _ = _tuned(source, args)
+        else:
+            model = fit_surface(source[0], source[1], **_fit_kwargs(args))
         _write_surface(model, args)
+        if args.preview and model.dim == 3:
+            _write_picture(model, args.preview, args)
     elif args.command == "fit":
         _check_output(args.output, (".npz",))
         source = _source(args)
@@ -224,10 +377,35 @@ def _run(args) -> int:
         save(model, args.output)
         if not args.quiet:
             log(f"wrote {args.output}")
+    elif args.command == "tune":
+        _check_output(args.output, (".npz",))
+        source = _source(args)
+        if args.max_steps < 1:
+            from ._errors import InputError
+
+            raise InputError(f"--max-steps must be at least 1, got {args.max_steps}")
+        model, report = _tuned(
+            source,
+            args,
+            params=args.params,
+            objective=args.objective,
+            max_steps=args.max_steps,
+            lm=args.optimizer == "lm",
+        )
+        save(model, args.output)
+        print(report.summary())
+        for k, point in enumerate(report.path):
+            print(f"  step {k}: " + ", ".join(f"{a} {b:.5g}" for a, b in point.items()))
+        if not args.quiet:
+            log(f"wrote {args.output}")
     elif args.command == "mesh":
         model = load(args.model)
         _check_output(args.output, MESH_OUT if model.dim == 3 else CURVE_OUT)
         _write_surface(model, args)
+    elif args.command == "render":
+        _check_output(args.output, (".png",))
+        model = load(args.model)
+        _write_picture(model, args.output, args)
     elif args.command == "evaluate":
         from .metrics import evaluate
 

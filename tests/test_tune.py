@@ -1,0 +1,190 @@
+"""Objectives (held-out, k-fold, Rippa's leave-one-out), `tune`, `grid_search`, the defaults from
+the point spacing, gradient-based shape fitting, and the `tune` command."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+from helpers import sphere, sphere_sdf
+
+import jaxrbf
+from jaxrbf import InputError, objectives
+from jaxrbf.cli import main
+
+P, N = sphere(100)
+
+
+def test_loocv_matches_brute_force():
+    x = np.random.default_rng(3).random((40, 3))
+    y = np.sin(3 * x[:, 0]) + x[:, 1]
+    fast = objectives.loocv_error(x, values=y, kernel="gaussian", radius=0.5, residuals=True)
+    errors = []
+    for i in range(len(x)):
+        keep = np.arange(len(x)) != i
+        m = jaxrbf.fit(x[keep], y[keep], kernel="gaussian", radius=0.5)
+        errors.append((y[i] - float(m(x[i : i + 1])[0])) / np.abs(y).max())
+    np.testing.assert_allclose(np.asarray(fast) * np.sqrt(len(x)), errors, rtol=1e-6, atol=1e-9)
+
+
+def test_held_out_and_kfold():
+    a = objectives.held_out_error(P, N, kernel="cubic", offset=0.05)
+    assert 0 < float(a) < 0.2  # a sphere's held-out samples lie close to the fitted zero set
+    # a wrong normal on the held-out side shows up in the misalignment term
+    train, test = objectives.split_samples(len(P), 0.2, 0)
+    flipped = N.copy()
+    flipped[test[:5]] *= -1
+    worse = objectives.held_out_error(P, flipped, kernel="cubic", offset=0.05, test=test)
+    assert float(worse) > float(a) + 5 * 2 / len(test) * 0.9
+    k = objectives.kfold_error(P, N, kernel="cubic", offset=0.05, k=2)
+    folds = np.array_split(np.random.default_rng(0).permutation(len(P)), 2)
+    each = [
+        float(objectives.held_out_error(P, N, kernel="cubic", offset=0.05, test=np.sort(f)))
+        for f in folds
+    ]
+    assert float(k) == pytest.approx(np.mean(each), rel=1e-10)
+
+
+def test_objective_gradients_match_finite_differences():
+    f = lambda a: objectives.held_out_error(  # noqa: E731
+        P, N, kernel="gaussian", offset=a[0], radius=a[1]
+    )
+    a = np.array([0.05, 0.4])
+    g = np.asarray(jax.jacfwd(f)(jnp.asarray(a)))
+    for k in range(2):
+        e = np.zeros(2)
+        e[k] = 1e-6
+        fd = (float(f(a + e)) - float(f(a - e))) / 2e-6
+        assert g[k] == pytest.approx(fd, rel=1e-4, abs=1e-7)
+
+
+def test_tune_improves_and_reports():
+    model, report = jaxrbf.tune(P, N, kernel="gaussian", radius=0.25, max_steps=4)
+    assert isinstance(model, jaxrbf.RBFModel)
+    assert report.final_objective <= report.initial_objective
+    assert report.params == ("offset", "radius")
+    assert len(report.path) == report.iterations >= 1
+    assert report.path[0]["objective"] == pytest.approx(report.initial_objective)
+    # the report's final objective is the objective at the final parameters
+    again = objectives.held_out_error(
+        P, N, kernel="gaussian", offset=report.final["offset"], radius=report.final["radius"]
+    )
+    assert float(again) == pytest.approx(report.final_objective, rel=1e-3, abs=1e-6)
+    # the model is fitted with them and interpolates the surface
+    assert np.abs(np.asarray(model(P))).max() < 1e-6
+    assert "tune (BFGS" in report.summary()
+
+
+def test_tune_with_levenberg_marquardt_offset_only():
+    lm = optx.LevenbergMarquardt(rtol=1e-3, atol=1e-3)
+    _, report = jaxrbf.tune(P, N, kernel="cubic", params=("offset",), solver=lm, max_steps=3)
+    assert report.final_objective <= report.initial_objective
+    assert set(report.final) == {"offset"}
+
+
+def test_tune_never_returns_worse_than_the_start():
+    # an objective whose minimum is the start: nothing better exists, the start comes back
+    d0 = 0.05
+
+    def bowl(points, normals, *, offset, **_):
+        return (jnp.log(offset) - np.log(d0)) ** 2 + 1.0
+
+    _, report = jaxrbf.tune(P, N, kernel="cubic", params="offset", offset=d0, objective=bowl)
+    assert not report.improved
+    assert report.final["offset"] == pytest.approx(d0)
+    assert report.final_objective == report.initial_objective
+    assert "start is returned" in report.message
+
+
+def test_grid_search():
+    offsets, radii = [0.03, 0.06], [0.2, 0.4]
+    best, table, _ = jaxrbf.grid_search(P, N, kernel="wendland", offsets=offsets, radii=radii)
+    assert table.shape == (2, 2) and np.all(np.isfinite(table))
+    i, j = np.unravel_index(np.argmin(table), table.shape)
+    assert (best["offset"], best["radius"]) == (offsets[i], radii[j])
+    direct = objectives.held_out_error(P, N, kernel="wendland", offset=0.06, radius=0.4)
+    assert table[1, 1] == pytest.approx(float(direct), rel=1e-10)
+
+
+def test_defaults_follow_the_point_spacing():
+    r1 = jaxrbf.default_radius("gaussian", P)
+    assert r1 == pytest.approx(2 * objectives.point_spacing(P))
+    assert jaxrbf.default_radius("gaussian", 10 * P) == pytest.approx(10 * r1)
+    assert jaxrbf.default_radius("cubic", P) is None
+    assert jaxrbf.default_offset(10 * P) == pytest.approx(10 * jaxrbf.default_offset(P))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(params=("size",)), "unknown parameter 'size'"),
+        (dict(kernel="cubic", params=("radius",)), "cubic kernel has no radius to tune"),
+        (dict(offset=-1.0), "`offset` must be a positive number"),
+        (dict(kernel="gaussian", radius=0.0), "`radius` must be a positive number"),
+        (dict(params=("offset", "smoothing")), "start the smoothing at a small positive"),
+        (dict(objective="best"), "unknown objective 'best'"),
+        (dict(solver=optx.Bisection(rtol=1e-3, atol=1e-3)), "optimistix minimiser"),
+        (dict(max_steps=0), "`max_steps` must be at least 1"),
+    ],
+)
+def test_tune_input_errors(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        jaxrbf.tune(P, N, **kwargs)
+
+
+def test_tune_rejects_nan_points():
+    bad = P.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        jaxrbf.tune(bad, N)
+
+
+def test_shape_fitting_by_gradient_descent():
+    """The documented use: RBF values as the parameters of a shape, fitted with optimistix to
+    signed-distance samples of another shape (a sphere of radius 1.3)."""
+    c = jaxrbf.Constraints.from_points(*sphere(40), 0.2)
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(300, 3))
+    q *= rng.uniform(1.0, 1.6, size=(300, 1)) / np.linalg.norm(q, axis=1, keepdims=True)
+    target = sphere_sdf(q, 1.3)
+
+    def loss(values, args):
+        model = jaxrbf.fit(c.points, values, kernel="cubic", solver="lu")
+        return jnp.mean((model(q) - target) ** 2)
+
+    v0 = jnp.asarray(c.values)  # the unit sphere's own signed distances
+    start = float(loss(v0, None))
+    sol = optx.minimise(loss, optx.BFGS(rtol=1e-8, atol=1e-8), v0, max_steps=60, throw=False)
+    assert float(loss(sol.value, None)) < 0.05 * start
+
+
+def test_tune_command(tmp_path, capsys):
+    out = tmp_path / "m.npz"
+    code = main(["tune", "--example", "bunny", "-o", str(out), "--points", "200", "-q"])
+    text, err = capsys.readouterr()
+    assert code == 0, err
+    assert "initial:" in text and "final:" in text and "step 0" in text
+    model = jaxrbf.load(out)
+    assert isinstance(model, jaxrbf.RBFModel)
+    code = main(["tune", "--example", "bunny", "-o", str(tmp_path / "x.npz"), "--params", "radius"])
+    _, err = capsys.readouterr()
+    assert code == 2 and "jaxrbf: error:" in err and "no radius" in err
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_reconstruct_tune(tmp_path, capsys):
+    src = tmp_path / "ball.xyz"
+    np.savetxt(src, np.hstack([P, N]))
+    out = tmp_path / "ball.ply"
+    args = ["reconstruct", str(src), "-o", str(out), "--tune", "--resolution", "32"]
+    code = main(args + ["--kernel", "wendland"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    assert "tune (BFGS" in err
+    v = jaxrbf.io.read_mesh(out).vertices
+    assert np.abs(np.linalg.norm(v, axis=1) - 1).max() < 0.03
+    code = main(args + ["--solver", "cg", "-o", str(tmp_path / "y.ply")])
+    _, err = capsys.readouterr()
+    assert code == 2 and "--tune fits one dense system" in err

@@ -67,7 +67,7 @@ def map_blocks(fn: Callable[[Array], Array], x: Float[Array, "n d"], rows: int) 
 class AbstractModel(eqx.Module):
     """What every fitted implicit shares: evaluation in the user's units through a normalising
     transform x' = (x - shift) / scale, in fixed-size blocks (memory bounded for any number of
-    points), with gradients and unit normals from `jax.grad`.
+    points), with gradients (analytic or forward-mode) and unit normals.
 
     Subclasses hold `shift`, `scale` and `residual` fields and implement `_eval_normalised`
     (values at a block of normalised points), `_block_rows` (the block size) and `bounds`.
@@ -86,6 +86,20 @@ class AbstractModel(eqx.Module):
 
     def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
         raise NotImplementedError
+
+    def _value_grad_normalised(
+        self, xn: Float[Array, "b d"]
+    ) -> tuple[Float[Array, " b"], Float[Array, "b d"]]:
+        """f and its gradient with respect to the normalised coordinates at a block `xn`. Default:
+        one forward-mode derivative per coordinate (`jax.jvp`), whose memory stays that of one
+        evaluation (reverse mode would keep every intermediate of the block for its backward
+        pass); subclasses with a closed form override it."""
+        cols = []
+        f = None
+        for e in jnp.eye(xn.shape[1], dtype=xn.dtype):
+            f, df = jax.jvp(self._eval_normalised, (xn,), (jnp.broadcast_to(e, xn.shape),))
+            cols.append(df)
+        return f, jnp.stack(cols, axis=1)
 
     def _block_rows(self) -> int:
         raise NotImplementedError
@@ -116,9 +130,18 @@ class AbstractModel(eqx.Module):
         return self._dispatch(_values, flat).reshape(lead)
 
     def gradient(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
-        """grad f at `x` (from `jax.grad`, in the user's units); shape (..., d)."""
+        """grad f at `x` (in the user's units; analytic for an `RBFModel`, forward-mode JAX
+        otherwise; differentiable again); shape (..., d)."""
+        return self.value_and_gradient(x)[1]
+
+    def value_and_gradient(
+        self, x: Float[ArrayLike, "... d"]
+    ) -> tuple[Float[Array, "..."], Float[Array, "... d"]]:
+        """f and grad f at `x` in one pass (cheaper than calling the model and `gradient`);
+        shapes (...) and (..., d)."""
         flat, lead = self._flat(x)
-        return self._dispatch(_gradients, flat).reshape(lead + (self.dim,))
+        fg = self._dispatch(_values_gradients, flat)
+        return fg[:, 0].reshape(lead), fg[:, 1:].reshape(lead + (self.dim,))
 
     def normal(self, x: Float[ArrayLike, "... d"]) -> Float[Array, "... d"]:
         """The unit normal grad f / |grad f| (outward: f grows outside)."""
@@ -158,6 +181,21 @@ class RBFModel(AbstractModel):
         phi = kernel_block(self.kernel, xn, self.centres)
         return phi @ self.weights + poly_basis(xn, self.degree) @ self.coeffs
 
+    def _value_grad_normalised(self, xn):
+        # grad f = 2 sum_j w_j phi'(r_j^2) (x - c_j) + grad p, with phi' the kernel's derivative
+        # in r^2 from one elementwise forward-mode pass, and both sums in one product of the
+        # (b, m) block with [w, w c] (about 4x the cost of the values alone, against 6-7x for
+        # reverse mode, whose backward pass also keeps the block's intermediates).
+        r2 = pairwise_sq(xn, self.centres)
+        phi, dphi = jax.jvp(self.kernel.from_r2, (r2,), (jnp.ones_like(r2),))
+        f = phi @ self.weights + poly_basis(xn, self.degree) @ self.coeffs
+        wc = jnp.concatenate([self.weights[:, None], self.weights[:, None] * self.centres], 1)
+        a = dphi @ wc
+        g = 2.0 * (a[:, :1] * xn - a[:, 1:])
+        if self.degree >= 1:
+            g = g + self.coeffs[1:]
+        return f, g
+
     def _block_rows(self) -> int:
         return block_rows(self.centres.shape[0])
 
@@ -181,10 +219,12 @@ def _values(model: AbstractModel, flat: Array) -> Array:
 
 
 @eqx.filter_jit
-def _gradients(model: AbstractModel, flat: Array) -> Array:
+def _values_gradients(model: AbstractModel, flat: Array) -> Array:
+    """(n, 1 + d): f, then grad f in the user's units."""
     rows = model._block_rows()
 
     def block(b):
-        return jax.grad(lambda y: jnp.sum(model._eval_normalised(model.normalise(y))))(b)
+        f, g = model._value_grad_normalised(model.normalise(b))
+        return jnp.concatenate([f[:, None], g / model.scale], axis=1)
 
     return map_blocks(block, flat, rows)

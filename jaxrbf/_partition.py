@@ -175,12 +175,12 @@ class PartitionModel(AbstractModel):
             return jnp.asarray(evaluate_many(self, np.asarray(flat))[0]).reshape(lead)
         return super().__call__(x)
 
-    def gradient(self, x):
+    def value_and_gradient(self, x):
         flat, lead = self._flat(x)
         if len(flat) >= BULK_MIN and not _traced(self, flat):
-            g = evaluate_many(self, np.asarray(flat), True)[1]
-            return jnp.asarray(g).reshape(lead + (self.dim,))
-        return super().gradient(x)
+            f, g = evaluate_many(self, np.asarray(flat), True)
+            return jnp.asarray(f).reshape(lead), jnp.asarray(g).reshape(lead + (self.dim,))
+        return super().value_and_gradient(x)
 
     def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
         num, den = self.blend(xn)

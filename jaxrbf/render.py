@@ -17,7 +17,8 @@ padded), so an image of any size compiles each kernel once per implicit:
    into fresh chunks after every round (a wavefront), so that a few slow grazing rays do not keep
    whole chunks busy.
 2. **Refinement** (`_refine`): bisection of the bracket, then safeguarded Newton steps along the
-   ray with the directional derivative from `jax.jvp`; then the normal from `jax.grad`.
+   ray with the directional derivative from `jax.jvp`; then the normal from the analytic gradient
+   (`value_and_gradient` of RBF models; forward-mode JAX for other callables).
 3. **Shading** (`_shade`): Lambert plus Blinn-Phong for one or two directional lights fixed to the
    camera, optional shadow rays (marched like primary rays) and ambient occlusion, optional
    colouring by a scalar (mean curvature, or any function of the hit points such as the signed
@@ -277,15 +278,22 @@ class _Grid(eqx.Module):
     lipschitz: jax.Array  # (nx, ny, nz) largest |grad f| sampled around the cell
 
 
-@eqx.filter_jit
-def _values_gradients(implicit, pts):
-    """f and grad f at (n, 3) points from three forward-mode derivatives (`jax.jvp`)."""
+def _value_grad(implicit, pts):
+    """f and grad f at (n, 3) points: the implicit's own `value_and_gradient` where it has one
+    (analytic for RBF models), else three forward-mode derivatives (`jax.jvp`), whose memory
+    stays that of one evaluation (reverse mode would keep every intermediate of the chunk)."""
+    own = getattr(implicit, "value_and_gradient", None)
+    if own is not None:
+        return own(pts)
     cols = []
     f = None
     for e in jnp.eye(3, dtype=pts.dtype):
         f, df = jax.jvp(implicit, (pts,), (jnp.broadcast_to(e, pts.shape),))
         cols.append(df)
     return f, jnp.stack(cols, axis=1)
+
+
+_values_gradients = eqx.filter_jit(_value_grad)
 
 
 def _in_chunks(fn, arrays: Sequence[np.ndarray], n: int, chunk: int = _CHUNK, bar=None):
@@ -442,7 +450,7 @@ def _refine(implicit, o, d, ta, fa, tb, fb, n_bisect: int, n_illinois: int):
     """The root in each bracket [ta, tb] (f(ta), f(tb) of opposite signs): `n_bisect` bisection
     steps, `n_illinois` steps of the Illinois variant of regula falsi (superlinear, f only), then
     one Newton step along the ray with the directional derivative from `jax.jvp`, kept inside the
-    bracket. Returns the depth, the point, f there and grad f (from `jax.grad`), float64."""
+    bracket. Returns the depth, the point, f there and grad f (`_value_grad`), float64."""
 
     def f_at(t):
         return implicit(o + t[:, None] * d)
@@ -481,8 +489,7 @@ def _refine(implicit, o, d, ta, fa, tb, fb, n_bisect: int, n_illinois: int):
     ok = (tn >= jnp.minimum(ta, tb)) & (tn <= jnp.maximum(ta, tb)) & jnp.isfinite(tn)
     t = jnp.where(ok, tn, tb)
     p = o + t[:, None] * d
-    f, pullback = jax.vjp(implicit, p)
-    (g,) = pullback(jnp.ones_like(f))
+    f, g = _value_grad(implicit, p)
     return t, p, f, g
 
 

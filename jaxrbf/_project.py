@@ -16,31 +16,62 @@ _ROWS = 4096
 
 def value_and_gradient(implicit: Callable, points) -> tuple[jax.Array, jax.Array]:
     """f and grad f at `points` (n, d) for any implicit that maps (n, d) points to (n,) values
-    independently per point; in fixed-size blocks. The gradient comes from `jax.vjp`."""
+    independently per point. A jaxrbf model answers with its own `value_and_gradient` (analytic
+    for RBF models, patch by patch for large concrete inputs to a partition of unity); any other
+    callable gets one forward-mode derivative per coordinate (`jax.jvp`) in fixed-size blocks,
+    whose memory stays that of one evaluation (reverse mode would keep every intermediate)."""
+    own = getattr(implicit, "value_and_gradient", None)
+    if own is not None:
+        return own(points)
 
     def block(p):
-        vals, pullback = jax.vjp(implicit, p)
-        return vals, pullback(jnp.ones_like(vals))[0]
+        cols = []
+        f = None
+        for e in jnp.eye(p.shape[1], dtype=p.dtype):
+            f, df = jax.jvp(implicit, (p,), (jnp.broadcast_to(e, p.shape),))
+            cols.append(df)
+        return jnp.concatenate([f.reshape(-1, 1)] + [c.reshape(-1, 1) for c in cols], 1)
 
-    p = jnp.asarray(points)
-    both = map_blocks(
-        lambda b: jnp.concatenate([x.reshape(b.shape[0], -1) for x in block(b)], 1), p, _ROWS
-    )
+    both = map_blocks(block, jnp.asarray(points), _ROWS)
     return both[:, 0], both[:, 1:]
+
+
+def _newton_step(x, f, g, level, max_step):
+    g2 = jnp.sum(g * g, axis=1)
+    step = jnp.where(g2 > 0, (f - level) / jnp.where(g2 > 0, g2, 1.0), 0.0)[:, None] * g
+    length = jnp.linalg.norm(step, axis=1, keepdims=True)
+    return x - step * jnp.minimum(1.0, max_step / jnp.maximum(length, 1e-300))
 
 
 @eqx.filter_jit
 def _newton(implicit, points, level, steps: int, max_step):
     def body(_, x):
         f, g = value_and_gradient(implicit, x)
-        g2 = jnp.sum(g * g, axis=1)
-        step = jnp.where(g2 > 0, (f - level) / jnp.where(g2 > 0, g2, 1.0), 0.0)[:, None] * g
-        length = jnp.linalg.norm(step, axis=1, keepdims=True)
-        step = step * jnp.minimum(1.0, max_step / jnp.maximum(length, 1e-300))
-        return x - step
+        return _newton_step(x, f, g, level, max_step)
 
     x = jax.lax.fori_loop(0, steps, body, points)
     f, g = value_and_gradient(implicit, x)
+    return x, f, g
+
+
+def _newton_host(implicit, points, level, steps: int, max_step, tol):
+    """The same iteration driven from the host, for models with their own bulk
+    `value_and_gradient` (a partition of unity evaluates many concrete points patch by patch, far
+    faster than inside one traced loop); a point stops moving once its distance estimate is at
+    round-off level (a millionth of `tol`)."""
+    x = np.array(points, dtype=float)
+    f, g = (np.array(a, dtype=float) for a in implicit.value_and_gradient(x))
+    live = np.arange(len(x))
+    for _ in range(steps):
+        gn = np.linalg.norm(g[live], axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            done = np.abs(f[live] - level) / gn <= 1e-6 * tol  # at round-off: stop moving
+        live = live[~done]
+        if len(live) == 0:
+            break
+        x[live] = np.asarray(_newton_step(x[live], f[live], g[live], level, max_step))
+        fl, gl = implicit.value_and_gradient(x[live])
+        f[live], g[live] = np.asarray(fl), np.asarray(gl)
     return x, f, g
 
 
@@ -70,8 +101,15 @@ def project(
     diag = diag if diag > 0 else 1.0
     max_step = 0.01 * diag if max_step is None else float(max_step)
     tol = 1e-6 * diag if tol is None else float(tol)
-    x, f, g = _newton(implicit, jnp.asarray(p), float(level), int(steps), max_step)
-    gnorm = jnp.linalg.norm(g, axis=1)
-    dist = jnp.abs(f - level) / jnp.where(gnorm > 0, gnorm, jnp.nan)
-    converged = np.asarray(jnp.isfinite(dist) & (dist <= tol))
-    return np.asarray(x), converged
+    if hasattr(implicit, "value_and_gradient"):
+        x, f, g = _newton_host(implicit, p, float(level), int(steps), max_step, tol)
+    else:
+        x, f, g = (
+            np.asarray(a)
+            for a in _newton(implicit, jnp.asarray(p), float(level), int(steps), max_step)
+        )
+    gnorm = np.linalg.norm(g, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.abs(f - level) / np.where(gnorm > 0, gnorm, np.nan)
+    converged = np.isfinite(dist) & (dist <= tol)
+    return x, converged

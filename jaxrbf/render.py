@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InputError
+from ._project import value_and_gradient as _value_grad
 
 __all__ = ["Camera", "Rendering", "render", "save_png", "mesh_error", "mean_curvature"]
 
@@ -278,22 +279,7 @@ class _Grid(eqx.Module):
     lipschitz: jax.Array  # (nx, ny, nz) largest |grad f| sampled around the cell
 
 
-def _value_grad(implicit, pts):
-    """f and grad f at (n, 3) points: the implicit's own `value_and_gradient` where it has one
-    (analytic for RBF models), else three forward-mode derivatives (`jax.jvp`), whose memory
-    stays that of one evaluation (reverse mode would keep every intermediate of the chunk)."""
-    own = getattr(implicit, "value_and_gradient", None)
-    if own is not None:
-        return own(pts)
-    cols = []
-    f = None
-    for e in jnp.eye(3, dtype=pts.dtype):
-        f, df = jax.jvp(implicit, (pts,), (jnp.broadcast_to(e, pts.shape),))
-        cols.append(df)
-    return f, jnp.stack(cols, axis=1)
-
-
-_values_gradients = eqx.filter_jit(_value_grad)
+_values_gradients = eqx.filter_jit(_value_grad)  # f and grad f (see `jaxrbf._project`)
 
 
 def _in_chunks(fn, arrays: Sequence[np.ndarray], n: int, chunk: int = _CHUNK, bar=None):

@@ -169,6 +169,25 @@ class PartitionModel(AbstractModel):
         module); `polygonize` uses it for grids and bands."""
         return evaluate_many(self, points, grad)
 
+    def coverage(self, points) -> np.ndarray:
+        """The finest level's weight sum, sum_i psi_i, at concrete points (n, d), on the host
+        (no kernel evaluation). Near the input samples it is of order 1; where it falls below
+        `TAU` the blend hands over to the coarser levels, which alone define f a patch radius or
+        more from every sample. `polygonize` drops mesh components lying mostly there."""
+        xn = (np.asarray(points, dtype=float) - np.asarray(self.shift)) / float(self.scale)
+        host = _host(self)
+        out = np.zeros(len(xn))
+        for s0 in range(0, len(xn), 2**16):
+            part = xn[s0 : s0 + 2**16]
+            pt, patch = _covering(host, self.grid_dims, part)
+            ball = host.balls[patch]
+            t2 = np.sum((part[pt] - ball[:, :-1]) ** 2, axis=1) / ball[:, -1]
+            t = np.sqrt(np.minimum(t2, 1.0))
+            out[s0 : s0 + len(part)] = np.bincount(
+                pt, (1.0 - t) ** 4 * (4.0 * t + 1.0), minlength=len(part)
+            )
+        return out
+
     def __call__(self, x):
         flat, lead = self._flat(x)
         if len(flat) >= BULK_MIN and not _traced(self, flat):

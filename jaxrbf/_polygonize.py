@@ -679,6 +679,7 @@ def polygonize(
     coarsening: int = 8,
     band_width: float = 1.5,
     refine: int = 1,
+    prune: bool | None = None,
 ):
     """Mesh the level set f = `level` of a 3-D implicit with marching cubes.
 
@@ -706,6 +707,13 @@ def polygonize(
       the band holds every cell the surface crosses; a feature smaller than a coarse cell where f
       is far from a distance function can be missed: raise `band_width` or lower `coarsening`.
       `last_band_stats()` tells what was evaluated.
+
+    - `prune`: drop mesh components that lie mostly away from the data (see
+      `PartitionModel.coverage`: most of their vertices where the finest level's weights sum
+      below `TAU`, i.e. a patch radius or more from every input sample). A partition of unity's coarse levels can cross zero there,
+      in concave regions, and leave small floating pieces (fandisk at 100k points: 15 pieces,
+      1,600 faces, up to 3% of the diagonal off the surface). Default (None): on for models that
+      have `coverage` (partitions of unity), off otherwise; a line on stderr says what was dropped.
 
     **Returns:** a `jaxrbf.io.Mesh` (vertices in world coordinates, faces oriented outward: their
     normals point to increasing f).
@@ -753,10 +761,56 @@ def polygonize(
         fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         if np.sum(fn * normals[faces].sum(axis=1)) > 0:
             faces = faces[:, ::-1].copy()
+    if prune is None:
+        prune = hasattr(implicit, "coverage")
+    if prune:
+        quiet = (not sys.stderr.isatty()) if progress is None else not progress
+        verts, faces = _prune(implicit, verts, faces, disable=quiet)
     if project:
         moved, ok = _project(implicit, verts, level=level, max_step=float(spacing.max()))
         verts = np.where(ok[:, None], moved, verts)
     return Mesh(verts, faces)
+
+
+def _prune(implicit, verts: np.ndarray, faces: np.ndarray, disable: bool):
+    """Drop the connected components of the mesh most of whose vertices lie where the
+    partition's finest level hands over to the coarse levels (`implicit.coverage` below the
+    blend's `TAU`): a patch radius or more from every input sample, where only the coarse
+    levels' extrapolation speaks. Returns the kept vertices (re-indexed) and faces."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from ._partition import TAU
+
+    if not hasattr(implicit, "coverage"):
+        raise InputError(
+            "prune=True needs an implicit that knows where its data lies (a PartitionModel has "
+            "`coverage`); this one has no `coverage` method"
+        )
+    if len(faces) == 0:
+        return verts, faces
+    n = len(verts)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    n_comp, label = connected_components(graph, directed=False)
+    near = np.asarray(implicit.coverage(verts)) >= TAU
+    share = np.bincount(label, near, minlength=n_comp) / np.bincount(label, minlength=n_comp)
+    good = share >= 0.5
+    if good.all():
+        return verts, faces
+    keep_face = good[label[faces[:, 0]]]
+    used = np.zeros(n, bool)
+    used[faces[keep_face].ravel()] = True
+    new_index = np.cumsum(used) - 1
+    if not disable:
+        from ._constraints import log
+
+        log(
+            f"dropped {int((~good).sum())} of {n_comp} mesh components "
+            f"({int((~keep_face).sum()):,} faces) lying mostly a patch radius or more from every "
+            "input sample (prune=False keeps them)"
+        )
+    return verts[used], new_index[faces[keep_face]]
 
 
 def contour(

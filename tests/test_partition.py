@@ -3,6 +3,7 @@ gradients, save/load, method choice and memory refusal."""
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -284,3 +285,47 @@ def test_coarse_levels_rebuilt_with_their_own_offset(monkeypatch):
     r = np.linalg.norm(far / [1.0, 0.8, 0.6], axis=1)
     keep = np.abs(r - 1) > 0.15
     assert np.all(np.sign(np.asarray(pu(far[keep]))) == np.sign(r[keep] - 1))
+
+
+def test_coverage_marks_the_data(models, torus_constraints):
+    # The finest level's weight sum is the blend's own: >= TAU at every surface sample, and 0
+    # far from the torus (its hole's centre and outside the box), as the gathered blend says.
+    pu, _ = models
+    surface = np.asarray(torus_constraints.points[: torus_constraints.n_surface])
+    cov = pu.coverage(surface)
+    assert cov.min() >= TAU
+    far = np.array([[0.0, 0.0, 0.0], [3.0, 3.0, 3.0]])
+    assert np.all(pu.coverage(far) == 0.0)
+    probe = surface[:50] + 0.1
+    _, den = pu.blend(pu.normalise(jnp.asarray(probe)))
+    np.testing.assert_allclose(pu.coverage(probe), np.asarray(den), rtol=1e-12, atol=1e-14)
+
+
+def test_polygonize_prunes_components_away_from_the_data(models):
+    # A second sphere far from the data, added to the field: its component lies where the
+    # finest level has no patch and is dropped by default; prune=False keeps it.
+    pu, _ = models
+
+    class WithBlob(eqx.Module):
+        model: PartitionModel
+
+        def __call__(self, x):
+            blob = jnp.linalg.norm(x - jnp.array([0.0, 0.0, 0.0]), axis=-1) - 0.15
+            return jnp.minimum(self.model(x), blob)
+
+        def coverage(self, x):
+            return self.model.coverage(x)
+
+        def bounds(self):
+            return self.model.bounds()
+
+    field = WithBlob(pu)
+    kept = jaxrbf.polygonize(field, resolution=48, prune=False, progress=False)
+    pruned = jaxrbf.polygonize(field, resolution=48, progress=False)
+    plain = jaxrbf.polygonize(pu, resolution=48, progress=False)
+    assert len(pruned.faces) < len(kept.faces)
+    assert np.linalg.norm(pruned.vertices, axis=1).min() > 0.4  # the blob is gone
+    assert np.linalg.norm(kept.vertices, axis=1).min() < 0.2
+    assert len(pruned.faces) == len(plain.faces)
+    assert pruned.faces.max() == len(pruned.vertices) - 1  # re-indexed, no unused vertices
+    assert euler(pruned) == 0

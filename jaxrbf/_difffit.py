@@ -118,25 +118,16 @@ def _checked(model, residual, finite, solver):
 
 def fit_traced(points, values, *, kernel, degree, smoothing, solver, radius, method, seed):
     """`jaxrbf.fit` when an input is traced; same arguments (see the module docstring)."""
-    from ._fit import AUTO_DENSE_LIMIT, METHODS, _check_size
+    from ._fit import AUTO_DENSE_LIMIT, METHODS, _check_size, checked_kernel
 
     x, h = _arrays(points, values)
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     if degree not in (-1, 0, 1):
         raise InputError(f"`degree` must be -1 (no polynomial), 0 or 1, got {degree!r}")
-    kern = make_kernel(kernel, radius)
-    if degree < kern.min_degree:
-        raise InputError(
-            f"the {kern.name} kernel needs a polynomial of degree >= {kern.min_degree} for a "
-            f"well-posed system, got degree={degree}"
-        )
+    kern = checked_kernel(kernel, radius, degree, x.shape)
     n, dim = x.shape
     k = n_poly(degree, dim)
-    if n <= k:
-        raise InputError(
-            f"{n} points cannot determine a degree-{degree} polynomial in {dim}-D plus weights; give more than {k}"
-        )
     if method == "global":
         raise InputError(
             "method='global' (greedy centre selection) is not differentiable: its choice of "

@@ -198,18 +198,9 @@ def fit(
     smoothing = float(smoothing)
     if not (np.isfinite(smoothing) and smoothing >= 0):
         raise InputError(f"`smoothing` must be a number >= 0, got {smoothing!r}")
-    kern = make_kernel(kernel, radius)
-    if degree < kern.min_degree:
-        raise InputError(
-            f"the {kern.name} kernel needs a polynomial of degree >= {kern.min_degree} for a "
-            f"well-posed system, got degree={degree}"
-        )
+    kern = checked_kernel(kernel, radius, degree, x.shape)
     n, dim = x.shape
     k = n_poly(degree, dim)
-    if n <= k:
-        raise InputError(
-            f"{n} points cannot determine a degree-{degree} polynomial in {dim}-D plus weights; give more than {k}"
-        )
     if not np.any(h != 0):
         raise InputError(
             "every value is 0, so the only solution is f = 0 (the paper's trivial solution); "
@@ -301,6 +292,25 @@ def fit(
         residual=jnp.asarray(residual),
         degree=degree,
     )
+
+
+def checked_kernel(kernel, radius, degree: int, shape: tuple[int, int]):
+    """The kernel, after checking that `degree` makes its system well posed and that `shape`
+    (n points, d dimensions) holds more points than the polynomial has terms."""
+    kern = make_kernel(kernel, radius)
+    if degree < kern.min_degree:
+        raise InputError(
+            f"the {kern.name} kernel needs a polynomial of degree >= {kern.min_degree} for a "
+            f"well-posed system, got degree={degree}"
+        )
+    n, dim = shape
+    k = n_poly(degree, dim)
+    if n <= k:
+        raise InputError(
+            f"{n} points cannot determine a degree-{degree} polynomial in {dim}-D plus weights; "
+            f"give more than {k}"
+        )
+    return kern
 
 
 def is_traced(*trees) -> bool:

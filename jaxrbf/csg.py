@@ -354,8 +354,8 @@ def _values(shapes, x) -> list[Array]:
     return [s._eval(x) if isinstance(s, AbstractShape) else s(x) for s in shapes]
 
 
-class Union(AbstractShape):
-    """min of the children (the solid of any), or their smooth minimum with blending `radius`."""
+class _Fold(AbstractShape):
+    """The children folded pairwise with `_pair` (min or max, or their smooth variants)."""
 
     shapes: tuple
     radius: Float[Array, ""] | None
@@ -368,12 +368,22 @@ class Union(AbstractShape):
     def dim(self) -> int:
         return _common_dim(self.shapes)
 
+    def _pair(self, a: Array, b: Array) -> Array:
+        raise NotImplementedError
+
     def _eval(self, x):
         vals = _values(self.shapes, x)
         out = vals[0]
         for v in vals[1:]:
-            out = _smin(out, v, self.radius)
+            out = self._pair(out, v)
         return out
+
+
+class Union(_Fold):
+    """min of the children (the solid of any), or their smooth minimum with blending `radius`."""
+
+    def _pair(self, a, b):
+        return _smin(a, b, self.radius)
 
     def bounds(self):
         boxes = [_bounds_of(s, self.dim) for s in self.shapes]
@@ -381,26 +391,11 @@ class Union(AbstractShape):
         return np.min([b[0] for b in boxes], 0) - pad, np.max([b[1] for b in boxes], 0) + pad
 
 
-class Intersection(AbstractShape):
+class Intersection(_Fold):
     """max of the children (the solid common to all), or their smooth maximum."""
 
-    shapes: tuple
-    radius: Float[Array, ""] | None
-
-    def __init__(self, *shapes: Callable, radius: float = 0.0):
-        self.shapes = _children(shapes)
-        self.radius = _radius(radius)
-
-    @property
-    def dim(self) -> int:
-        return _common_dim(self.shapes)
-
-    def _eval(self, x):
-        vals = _values(self.shapes, x)
-        out = vals[0]
-        for v in vals[1:]:
-            out = _smax(out, v, self.radius)
-        return out
+    def _pair(self, a, b):
+        return _smax(a, b, self.radius)
 
     def bounds(self):
         boxes = [_bounds_of(s, self.dim) for s in self.shapes]

@@ -149,7 +149,7 @@ def fit_surface(
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper;
     `radius` (kernels that have one) is a fraction of the diagonal; by default it is set from
     the point spacing (`jaxrbf.default_radius`: 2 median nearest-neighbour spacings of the
-    surface samples for the Gaussian and the multiquadrics, 8 for Wendland).
+    surface samples for the Gaussian and the multiquadrics, 32 for Wendland).
     `method` as for `fit` (`auto`: one dense system up to 15,000 unknowns, a partition of unity
     beyond). For the dense and global methods `solver` defaults to `cg` (Schwarz-preconditioned
     conjugate gradients: 3-4x faster than a dense solve at 12,000 constraints) except for the

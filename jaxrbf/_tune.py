@@ -33,7 +33,7 @@ DEFAULT_RADIUS_SPACINGS = {
     "gaussian": 2.0,
     "multiquadric": 2.0,
     "inverse-multiquadric": 2.0,
-    "wendland": 8.0,
+    "wendland": 32.0,
 }
 #: Tuning searches each parameter within this factor of its starting value.
 SEARCH_FACTOR = 30.0

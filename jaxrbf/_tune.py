@@ -169,6 +169,21 @@ def _validate_samples(points, normals):
     return p, _unit_normals(normals, len(p), p.shape[1])
 
 
+def support_floor(points, padding: float = 0.05, samples: int = 12) -> float:
+    """The smallest radius for which every point of the points' bounding box, grown by
+    `padding` of its size as `polygonize` does, has a sample within it (sampled on a
+    `samples`^d lattice over the box; a KD-tree query, on the host)."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=float)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    pad = padding * (hi - lo)
+    axes = [np.linspace(a, b, samples) for a, b in zip(lo - pad, hi + pad, strict=True)]
+    box = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, p.shape[1])
+    dist, _ = cKDTree(p).query(box, workers=-1)
+    return float(dist.max())
+
+
 def tune(
     points,
     normals,
@@ -245,9 +260,18 @@ def tune(
             f"`solver` must be an optimistix minimiser or least-squares solver, got {type(solver).__name__}"
         )
     fixed = {k: v for k, v in start.items() if k not in params}
+    if "radius" in params and kname == "wendland":
+        # A compactly supported fit is its bare polynomial wherever no centre lies within the
+        # radius, and that polynomial crosses zero somewhere: spurious sheets that the held-out
+        # error (measured on the surface) cannot see. Keep the support over the whole box.
+        floor = float(np.log(support_floor(p)))
+        start["radius"] = max(start["radius"], float(np.exp(floor)))
     y0 = {k: jnp.log(jnp.asarray(start[k], dtype=float)) for k in params}
     lo = {k: v - np.log(SEARCH_FACTOR) for k, v in y0.items()}
     hi = {k: v + np.log(SEARCH_FACTOR) for k, v in y0.items()}
+    if "radius" in params and kname == "wendland":
+        lo["radius"] = max(lo["radius"], floor)
+        hi["radius"] = max(hi["radius"], floor)
 
     def values(y):
         return {k: jnp.exp(jnp.clip(y[k], lo[k], hi[k])) for k in params}

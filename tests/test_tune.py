@@ -12,6 +12,7 @@ from helpers import sphere, sphere_sdf
 
 import jaxrbf
 from jaxrbf import InputError, objectives
+from jaxrbf._tune import support_floor
 from jaxrbf.cli import main
 
 P, N = sphere(100)
@@ -114,6 +115,21 @@ def test_defaults_follow_the_point_spacing():
     assert jaxrbf.default_radius("gaussian", 10 * P) == pytest.approx(10 * r1)
     assert jaxrbf.default_radius("cubic", P) is None
     assert jaxrbf.default_offset(10 * P) == pytest.approx(10 * jaxrbf.default_offset(P))
+
+
+def test_wendland_support_covers_the_box():
+    # Samples of a sphere: the farthest points of their box grown by 5% are its corners.
+    floor = support_floor(P)
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    pad = 0.05 * (hi - lo)
+    corners = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    corners = np.where(corners, hi + pad, lo - pad)
+    expected = np.linalg.norm(corners[:, None] - P[None], axis=-1).min(axis=1).max()
+    assert expected <= floor <= 1.05 * expected
+    # tuning a Wendland fit never searches below it, even from a smaller start
+    _, report = jaxrbf.tune(P, N, kernel="wendland", radius=0.2, max_steps=2)
+    assert report.initial["radius"] == pytest.approx(floor)
+    assert all(step["radius"] >= floor * (1 - 1e-9) for step in report.path)
 
 
 @pytest.mark.parametrize(

@@ -41,7 +41,9 @@ def main() -> int:
     ap.add_argument("--grid", type=int, default=7, help="grid points per parameter (default 7)")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--samples", type=int, default=100_000, help="metric samples per mesh")
-    ap.add_argument("--max-steps", type=int, default=7, help="optimiser steps of tune")
+    ap.add_argument(
+        "--max-steps", type=int, default=4, help="optimiser steps of tune (default 4, as tune)"
+    )
     ap.add_argument(
         "--solver", choices=("bfgs", "lm"), default="bfgs", help="optimiser of tune (default bfgs)"
     )

@@ -169,6 +169,32 @@ def _validate_samples(points, normals):
     return p, _unit_normals(normals, len(p), p.shape[1])
 
 
+def _rescaled(state, y, scale):
+    """A quasi-Newton state after its first step (which evaluated f and its gradient at `y`
+    with the objective unscaled) as if the objective had been divided by `scale` from the start:
+    f and the gradient divided by it, and so the first descent direction and the next point to
+    evaluate. The alternative, restarting the solver, evaluates the start a second time (one fit
+    and its tangents). None where the state is not the expected optimistix quasi-Newton state
+    (then the caller restarts)."""
+    try:
+        info = state.f_info
+        if not hasattr(info, "hessian_inv"):
+            return None
+        state = eqx.tree_at(
+            lambda st: (st.f_info.f, st.f_info.grad, st.descent_state.newton, st.y_eval),
+            state,
+            (
+                info.f / scale,
+                jax.tree.map(lambda v: v / scale, info.grad),
+                jax.tree.map(lambda v: v / scale, state.descent_state.newton),
+                jax.tree.map(lambda a, b: a + (b - a) / scale, y, state.y_eval),
+            ),
+        )
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return state
+
+
 def support_floor(points, padding: float = 0.05, samples: int = 12) -> float:
     """The smallest radius for which every point of the points' bounding box, grown by
     `padding` of its size as `polygonize` does, has a sample within it (sampled on a
@@ -196,7 +222,7 @@ def tune(
     radius: float | None = None,
     smoothing: float = 0.0,
     degree: int = 1,
-    max_steps: int = 7,
+    max_steps: int = 4,
     fit_solver: str = "lu",
     verbose: bool = False,
 ):
@@ -364,7 +390,7 @@ def tune(
                     g = max(float(jnp.max(jnp.abs(v))) for v in jax.tree.leaves(grad))
                     if np.isfinite(g) and g > 0:
                         scale = jnp.asarray(g / 0.7)
-                        state = init(y0, scale)
+                        state = _rescaled(state, y, scale) or init(y0, scale)
                         done = False
             point = dict(as_dict(y), objective=f_acc)
             path.append(point)
@@ -556,7 +582,7 @@ def tune_surface(
     points: int | None = None,
     sampling: str = "faces",
     seed: int = 0,
-    max_steps: int = 7,
+    max_steps: int = 4,
     verbose: bool = False,
 ):
     """`tune` on the surface samples of `source` (see `surface_samples`), with `offset` and

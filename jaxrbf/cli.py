@@ -112,7 +112,7 @@ def _tune_options(p: argparse.ArgumentParser) -> None:
         default="bfgs",
         help="optimistix BFGS (default) or Levenberg-Marquardt",
     )
-    g.add_argument("--max-steps", type=int, default=7, help="optimiser steps (default 7)")
+    g.add_argument("--max-steps", type=int, default=4, help="optimiser steps (default 4)")
     g.add_argument("--radius", type=float, help="starting radius, fraction of the diagonal")
     g.add_argument("--offset", type=float, help="starting offset, fraction of the diagonal")
     g.add_argument(

@@ -204,3 +204,33 @@ def test_reconstruct_tune(tmp_path, capsys):
     code = main(args + ["--solver", "cg", "-o", str(tmp_path / "y.ply")])
     _, err = capsys.readouterr()
     assert code == 2 and "--tune fits one dense system" in err
+
+
+def test_rescaled_state_matches_a_restart():
+    # tune divides the objective by a scale chosen after the first step; rescaling the solver's
+    # state must give the same next steps as restarting BFGS with that scale (which pays one more
+    # evaluation of the start).
+    from jaxrbf._tune import _rescaled
+
+    def fn(y, args):
+        return (
+            jnp.sum((y - jnp.array([1.0, -2.0])) ** 2 * jnp.array([3.0, 0.5])) + 1.0
+        ) / args, None
+
+    solver = optx.BFGS(rtol=1e-8, atol=1e-8)
+    y0 = jnp.array([0.3, 0.4])
+    opts, tags = {"autodiff_mode": "fwd"}, frozenset()
+    f_struct = jax.ShapeDtypeStruct((), jnp.float64)
+    st = solver.init(fn, y0, 1.0, opts, f_struct, None, tags)
+    y, st, _ = solver.step(fn, y0, 1.0, opts, st, tags)
+    scale = jnp.asarray(7.0)
+    fast = _rescaled(st, y, scale)
+    assert fast is not None
+    slow = solver.init(fn, y0, scale, opts, f_struct, None, tags)
+    ys, slow, _ = solver.step(fn, y0, scale, opts, slow, tags)
+    yf = y
+    for _ in range(3):
+        yf, fast, _ = solver.step(fn, yf, scale, opts, fast, tags)
+        ys, slow, _ = solver.step(fn, ys, scale, opts, slow, tags)
+        np.testing.assert_allclose(yf, ys, rtol=1e-12, atol=1e-14)
+    assert not np.allclose(yf, y0)

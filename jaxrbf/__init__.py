@@ -16,11 +16,16 @@ from importlib.metadata import PackageNotFoundError as _PNF
 from importlib.metadata import version as _version
 
 from . import csg as csg
+from . import features as features
 from . import io as io
 from . import kernels as kernels
 from . import metrics as metrics
 from . import objectives as objectives
 from . import plot as plot
+from ._clean import OutlierReport as OutlierReport
+from ._clean import boundary_loops as boundary_loops
+from ._clean import is_watertight as is_watertight
+from ._clean import remove_outliers as remove_outliers
 from ._constraints import Constraints as Constraints
 from ._constraints import offset_caps as offset_caps
 from ._constraints import surface_constraints as surface_constraints
@@ -31,6 +36,8 @@ from ._fit import fit as fit
 from ._greedy import GreedyReport as GreedyReport
 from ._greedy import greedy_fit as greedy_fit
 from ._model import RBFModel as RBFModel
+from ._normals import NormalsReport as NormalsReport
+from ._normals import estimate_normals as estimate_normals
 from ._partition import PartitionModel as PartitionModel
 from ._polygonize import contour as contour
 from ._polygonize import polygonize as polygonize
@@ -46,6 +53,9 @@ from ._tune import default_offset as default_offset
 from ._tune import default_radius as default_radius
 from ._tune import grid_search as grid_search
 from ._tune import tune as tune
+from .features import Features as Features
+from .features import principal_curvatures as principal_curvatures
+from .features import sharp_features as sharp_features
 from .plot import plot_field as plot_field
 from .render import Camera as Camera
 from .render import Rendering as Rendering

@@ -55,6 +55,54 @@ def _subsample(p, n, k, seed):
     return p, n
 
 
+NORMALS = ("auto", "given", "estimate")
+
+
+def _normals_mode(normals):
+    """`(mode, array or None)` from the `normals` argument (an array, None or a mode name)."""
+    if normals is None:
+        return "auto", None
+    if isinstance(normals, str):
+        if normals not in NORMALS:
+            raise InputError(
+                f"unknown `normals` {normals!r}; expected an (n, d) array or one of "
+                f"{', '.join(NORMALS)}"
+            )
+        return normals, None
+    return "given", normals
+
+
+def _clean_cloud(data, name: str, mode: str, outliers: bool, verbose: bool):
+    """The point cloud `data` after outlier removal and with normals as `mode` asks."""
+    from . import io
+
+    p, n = data.points, data.normals
+    if mode == "given" and n is None:
+        raise InputError(
+            f"{name} has points but no normals; give nx, ny, nz columns (or a mesh) so that "
+            "inside and outside are known, or estimate them (--normals estimate|auto)"
+        )
+    if outliers:
+        from ._clean import remove_outliers
+
+        p, n, rep = remove_outliers(p, n)
+        if verbose:
+            log(f"{name}: {rep.summary()}")
+    if mode == "estimate" or n is None:
+        if p.shape[1] != 3:
+            raise InputError(
+                f"{name} has 2-D points without normals; normal estimation is 3-D only: give "
+                "normals or a polyline (.csv .npy)"
+            )
+        from ._normals import estimate_normals
+
+        why = "estimating them" if n is None else "re-estimating them (--normals estimate)"
+        log(f"{name}: {'no normals given' if n is None else 'normals given'}, {why}")
+        n, rep = estimate_normals(p)
+        log(rep.summary())
+    return io.PointCloud(p, n)
+
+
 def constraints_from(
     source,
     normals=None,
@@ -64,6 +112,7 @@ def constraints_from(
     offset: float | None = None,
     seed: int = 0,
     subsample: bool = False,
+    remove_outliers: bool = False,
     verbose: bool = False,
 ) -> Constraints:
     """Constraints from a file path (mesh, point cloud with normals, 2-D polyline) or from arrays.
@@ -78,6 +127,13 @@ def constraints_from(
     - `sampling`: for meshes, `faces` (uniform samples with face normals) or `vertices`
       (area-weighted vertex normals).
     - `offset`: d as a fraction of the bounding-box diagonal (default 0.01).
+    - `normals`: for point clouds, an (n, d) array (with an array `source`), or how to get them:
+      `"auto"` (or `None`: the default) uses the normals the input has and estimates them
+      (`jaxrbf.estimate_normals`, 3-D only) when it has none, saying so on stderr; `"given"`
+      requires normals in the input; `"estimate"` ignores any and estimates them. Meshes and
+      polylines ignore it (their normals come from their faces and segments).
+    - `remove_outliers`: drop statistical outliers of a point cloud first
+      (`jaxrbf.remove_outliers` with its defaults).
     """
     from . import io
 
@@ -86,15 +142,20 @@ def constraints_from(
         raise InputError(f"`offset` must be a positive fraction of the diagonal, got {offset!r}")
     if points is not None and int(points) < 1:
         raise InputError(f"`points` must be a positive number, got {points}")
+    mode, normals = _normals_mode(normals)
     if isinstance(source, (str, os.PathLike)):
+        if normals is not None:
+            raise InputError(
+                "`normals` as an array goes with an array of points; with a file give "
+                "'auto', 'given' or 'estimate'"
+            )
         data = io.read_input(source)
         name = os.fspath(source)
     else:
-        if normals is None:
-            raise InputError(
-                "`normals` are needed with an array of points (one outward normal per point)"
-            )
-        data = io.PointCloud(io.as_points(source, "points"), np.asarray(normals, dtype=float))
+        data = io.PointCloud(
+            io.as_points(source, "points"),
+            None if normals is None else np.asarray(normals, dtype=float),
+        )
         name = "the points"
     if isinstance(data, io.Mesh):
         v, f = data.vertices, data.faces
@@ -108,11 +169,7 @@ def constraints_from(
     elif isinstance(data, io.Polyline):
         c = Constraints.from_polyline(data.vertices, data.closed, frac * diagonal(data.vertices))
     else:
-        if data.normals is None:
-            raise InputError(
-                f"{name} has points but no normals; give nx, ny, nz columns (or a mesh) so that "
-                "inside and outside are known"
-            )
+        data = _clean_cloud(data, name, mode, remove_outliers, verbose)
         check_not_flat(data.points, f"points of {name}")
         if points is None and subsample and len(data.points) > DEFAULT_POINTS:
             points = DEFAULT_POINTS
@@ -142,6 +199,7 @@ def fit_surface(
     sampling: str = "faces",
     offset: float | None = None,
     seed: int = 0,
+    remove_outliers: bool = False,
     verbose: bool = False,
 ) -> AbstractModel:
     """Constraints from `source` (see `constraints_from`), then `fit`.
@@ -154,6 +212,7 @@ def fit_surface(
     beyond). For the dense and global methods `solver` defaults to `cg` (Schwarz-preconditioned
     conjugate gradients: 3-4x faster than a dense solve at 12,000 constraints) except for the
     Gaussian, whose fast-decaying spectrum defeats iterative solvers: it gets `lu`.
+    `normals` and `remove_outliers` as for `constraints_from`.
     """
     from ._fit import METHODS
     from .kernels import AbstractKernel, kernel_class
@@ -168,6 +227,7 @@ def fit_surface(
         offset=offset,
         seed=seed,
         subsample=method == "dense",
+        remove_outliers=remove_outliers,
         verbose=verbose,
     )
     dim = c.points.shape[1]
@@ -205,6 +265,7 @@ def fit_surface(
                 sampling=sampling,
                 offset=frac,
                 seed=seed,
+                remove_outliers=remove_outliers,
                 verbose=verbose,
             )
     if solver is None and method != "partition":
@@ -222,6 +283,33 @@ def fit_surface(
     )
 
 
+#: Padding of the meshing box (fraction of the centres' box) for a second try when the surface
+#: leaves the default box (5%): a hole filled by the implicit surface often bulges out of it.
+WIDE_PADDING = 0.3
+
+
+def mesh_closed(
+    model, resolution: int = 128, *, project: bool = False, progress=None, verbose=False
+):
+    """`polygonize(model)`, once more in a box grown by `WIDE_PADDING` when the mesh is open
+    (the surface left the default box: typically where it fills a hole of the input). Returns the
+    watertight mesh if either is, else the first."""
+    from ._clean import is_watertight
+    from ._polygonize import polygonize
+
+    mesh = polygonize(model, resolution=resolution, project=project, progress=progress)
+    if is_watertight(mesh):
+        return mesh
+    wide = polygonize(
+        model, resolution=resolution, project=project, progress=progress, padding=WIDE_PADDING
+    )
+    if is_watertight(wide):
+        if verbose:
+            log(f"the surface left the meshing box: meshed again with {WIDE_PADDING:.0%} padding")
+        return wide
+    return mesh
+
+
 def reconstruct(
     source,
     normals=None,
@@ -236,11 +324,11 @@ def reconstruct(
 
     **Arguments:** `resolution` and `project` as for `polygonize`; every other option as for
     `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `solver`, `method`, `points`,
-    `sampling`, `offset`, `seed`).
+    `sampling`, `offset`, `seed`, `remove_outliers`); `normals` as for `constraints_from`.
 
     **Returns:** a `jaxrbf.io.Mesh` for 3-D input; for a 2-D polyline, a list of (k, 2) curves.
     """
-    from ._polygonize import contour, polygonize
+    from ._polygonize import contour
 
     model = fit_surface(source, normals, verbose=verbose, **options)
     t0 = time.perf_counter()
@@ -249,7 +337,9 @@ def reconstruct(
         if verbose:
             log(f"{len(out)} curves in {time.perf_counter() - t0:.1f} s")
         return out
-    mesh = polygonize(model, resolution=resolution, project=project, progress=progress)
+    mesh = mesh_closed(
+        model, resolution=resolution, project=project, progress=progress, verbose=verbose
+    )
     if verbose:
         log(
             f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in {time.perf_counter() - t0:.1f} s"

@@ -70,6 +70,20 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         "--degree", type=int, choices=(-1, 0, 1), default=1, help="polynomial degree (default 1)"
     )
     g.add_argument("--seed", type=int, default=0, help="seed of the surface sampling")
+    g.add_argument(
+        "--normals",
+        choices=("auto", "given", "estimate"),
+        default="auto",
+        help="point clouds: use the file's normals (given), estimate them from the points "
+        "(estimate: PCA + minimum-spanning-tree orientation), or use them if present and "
+        "estimate otherwise (auto, default)",
+    )
+    g.add_argument(
+        "--remove-outliers",
+        action="store_true",
+        help="point clouds: drop statistical outliers (mean distance to 16 neighbours more "
+        "than 2 standard deviations above the mean) first",
+    )
 
 
 def _mesh_options(p: argparse.ArgumentParser) -> None:
@@ -155,6 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"jaxrbf {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    from .features import add_features_parser
+
+    add_features_parser(sub)
 
     r = sub.add_parser(
         "reconstruct", help="input file -> surface mesh (or curves, for a 2-D polyline)"
@@ -162,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "input",
         nargs="?",
-        help="mesh (.obj .ply .stl .off), point cloud with normals (.ply .xyz .npz) or polyline (.csv .npy)",
+        help="mesh (.obj .ply .stl .off), point cloud with or without normals (.ply .xyz .npz) or polyline (.csv .npy)",
     )
     r.add_argument(
         "-o",
@@ -277,14 +294,24 @@ def _fit_kwargs(args) -> dict:
         sampling=args.sampling,
         offset=args.offset,
         seed=args.seed,
+        remove_outliers=args.remove_outliers,
         verbose=not args.quiet,
     )
 
 
-def _write_surface(model, args) -> None:
+def _normals_arg(source, args):
+    """The `normals` argument of `fit_surface`: the arrays' normals, or the --normals mode."""
+    if source[1] is not None and args.normals != "estimate":
+        return source[1]
+    return args.normals
+
+
+def _write_surface(model, args):
+    """Mesh (or contour) `model` to `args.output`; returns the mesh (3-D) or None."""
     from . import io
     from ._constraints import log
-    from ._polygonize import contour, polygonize
+    from ._polygonize import contour
+    from ._reconstruct import mesh_closed
 
     t0 = time.perf_counter()
     progress = None if args.quiet else True
@@ -293,13 +320,40 @@ def _write_surface(model, args) -> None:
         io.write_polylines(args.output, curves)
         what = f"{len(curves)} curves"
     else:
-        mesh = polygonize(
-            model, resolution=args.resolution, project=args.project, progress=progress
+        mesh = mesh_closed(
+            model,
+            resolution=args.resolution,
+            project=args.project,
+            progress=progress,
+            verbose=not args.quiet,
         )
         io.write_mesh(args.output, mesh)
         what = f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces"
     if not args.quiet:
         log(f"wrote {args.output}: {what} ({time.perf_counter() - t0:.1f} s)")
+    return None if model.dim == 2 else mesh
+
+
+def _log_topology(source, mesh) -> None:
+    """Boundary loops of the input (when it is a mesh file) and whether the output is closed."""
+    from . import io
+    from ._clean import boundary_loops, is_watertight
+    from ._constraints import log
+
+    if source[1] is None and isinstance(source[0], (str, os.PathLike)):
+        data = io.read_input(source[0])
+        if isinstance(data, io.Mesh):
+            loops = boundary_loops(data)
+            log(
+                f"input mesh has {loops} boundary loop{'s' if loops != 1 else ''}"
+                + (" (holes, filled by the implicit surface)" if loops else "")
+            )
+    tight = is_watertight(mesh)
+    log(
+        "output mesh is watertight"
+        if tight
+        else "output mesh is not watertight (the surface leaves the grid, or has open edges)"
+    )
 
 
 def _write_picture(model, path: str, args) -> None:
@@ -366,14 +420,16 @@ def _run(args) -> int:
                 )
             model, _ = _tuned(source, args)
         else:
-            model = fit_surface(source[0], source[1], **_fit_kwargs(args))
-        _write_surface(model, args)
+            model = fit_surface(source[0], _normals_arg(source, args), **_fit_kwargs(args))
+        mesh = _write_surface(model, args)
+        if mesh is not None and not args.quiet:
+            _log_topology(source, mesh)
         if args.preview and model.dim == 3:
             _write_picture(model, args.preview, args)
     elif args.command == "fit":
         _check_output(args.output, (".npz",))
         source = _source(args)
-        model = fit_surface(source[0], source[1], **_fit_kwargs(args))
+        model = fit_surface(source[0], _normals_arg(source, args), **_fit_kwargs(args))
         save(model, args.output)
         if not args.quiet:
             log(f"wrote {args.output}")
@@ -402,6 +458,10 @@ def _run(args) -> int:
         model = load(args.model)
         _check_output(args.output, MESH_OUT if model.dim == 3 else CURVE_OUT)
         _write_surface(model, args)
+    elif args.command == "features":
+        from .features import run_features
+
+        return run_features(args)
     elif args.command == "render":
         _check_output(args.output, (".png",))
         model = load(args.model)

@@ -34,7 +34,6 @@ import numpy as np
 from jax import lax
 from jax._src.core import to_concrete_value
 
-from ._constraints import Constraints
 from ._errors import InputError, SolveError
 from ._model import RBFModel, n_poly
 from .kernels import AbstractKernel, make_kernel
@@ -50,12 +49,9 @@ def concrete(x):
 
 
 def _arrays(points, values):
-    if isinstance(points, Constraints):
-        if values is not None:
-            raise InputError("give either `Constraints` or `points` and `values`, not both")
-        points, values = points.points, points.values
-    elif values is None:
-        raise InputError("`values` is missing: give the value f must take at each point")
+    from ._fit import unpack
+
+    points, values = unpack(points, values)
     x = jnp.asarray(points, dtype=float)
     h = jnp.asarray(values, dtype=float)
     if x.ndim != 2 or x.shape[0] == 0:

@@ -60,14 +60,20 @@ def _check_size(n: int, solver: str) -> None:
         )
 
 
-def points_and_values(points, values) -> tuple[np.ndarray, np.ndarray]:
-    """Validated (n, d) points and (n,) finite values, from arrays or from a `Constraints`."""
+def unpack(points, values):
+    """`(points, values)` from a `Constraints` or from the two arrays, unchecked."""
     if isinstance(points, Constraints):
         if values is not None:
             raise InputError("give either `Constraints` or `points` and `values`, not both")
-        points, values = points.points, points.values
-    elif values is None:
+        return points.points, points.values
+    if values is None:
         raise InputError("`values` is missing: give the value f must take at each point")
+    return points, values
+
+
+def points_and_values(points, values) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (n, d) points and (n,) finite values, from arrays or from a `Constraints`."""
+    points, values = unpack(points, values)
     x = as_points(points, "points", dims=tuple(range(1, 33)))
     h = np.asarray(values, dtype=float)
     if h.ndim != 1 or len(h) != len(x):

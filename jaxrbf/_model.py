@@ -49,6 +49,18 @@ def poly_basis(x: Float[Array, "n d"], degree: int) -> Float[Array, "n k"]:
     return jnp.concatenate([ones, x], axis=1)
 
 
+def forward_value_and_gradient(fn: Callable[[Array], Array], x: Float[Array, "b d"]):
+    """f and grad f at points `x` (b, d) of a row-wise `fn`, from one forward-mode derivative
+    per coordinate (`jax.jvp`): memory stays that of one evaluation, where reverse mode would
+    keep every intermediate for its backward pass. Returns shapes (b,) and (b, d)."""
+    cols = []
+    f = None
+    for e in jnp.eye(x.shape[1], dtype=x.dtype):
+        f, df = jax.jvp(fn, (x,), (jnp.broadcast_to(e, x.shape),))
+        cols.append(df.reshape(-1))
+    return f.reshape(-1), jnp.stack(cols, axis=1)
+
+
 def map_blocks(fn: Callable[[Array], Array], x: Float[Array, "n d"], rows: int) -> Array:
     """Apply `fn` to fixed-size row blocks of `x` (the last one padded) and join the results.
 
@@ -94,12 +106,7 @@ class AbstractModel(eqx.Module):
         one forward-mode derivative per coordinate (`jax.jvp`), whose memory stays that of one
         evaluation (reverse mode would keep every intermediate of the block for its backward
         pass); subclasses with a closed form override it."""
-        cols = []
-        f = None
-        for e in jnp.eye(xn.shape[1], dtype=xn.dtype):
-            f, df = jax.jvp(self._eval_normalised, (xn,), (jnp.broadcast_to(e, xn.shape),))
-            cols.append(df)
-        return f, jnp.stack(cols, axis=1)
+        return forward_value_and_gradient(self._eval_normalised, xn)
 
     def _block_rows(self) -> int:
         raise NotImplementedError

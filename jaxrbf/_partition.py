@@ -182,10 +182,8 @@ class PartitionModel(AbstractModel):
             pt, patch = _covering(host, self.grid_dims, part)
             ball = host.balls[patch]
             t2 = np.sum((part[pt] - ball[:, :-1]) ** 2, axis=1) / ball[:, -1]
-            t = np.sqrt(np.minimum(t2, 1.0))
-            out[s0 : s0 + len(part)] = np.bincount(
-                pt, (1.0 - t) ** 4 * (4.0 * t + 1.0), minlength=len(part)
-            )
+            psi = np.asarray(wendland_weight(jnp.asarray(t2)))
+            out[s0 : s0 + len(part)] = np.bincount(pt, psi, minlength=len(part))
         return out
 
     def __call__(self, x):

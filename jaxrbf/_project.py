@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._model import map_blocks
+from ._model import forward_value_and_gradient, map_blocks
 
 _ROWS = 4096
 
@@ -25,12 +25,8 @@ def value_and_gradient(implicit: Callable, points) -> tuple[jax.Array, jax.Array
         return own(points)
 
     def block(p):
-        cols = []
-        f = None
-        for e in jnp.eye(p.shape[1], dtype=p.dtype):
-            f, df = jax.jvp(implicit, (p,), (jnp.broadcast_to(e, p.shape),))
-            cols.append(df)
-        return jnp.concatenate([f.reshape(-1, 1)] + [c.reshape(-1, 1) for c in cols], 1)
+        f, g = forward_value_and_gradient(implicit, p)
+        return jnp.concatenate([f[:, None], g], 1)
 
     both = map_blocks(block, jnp.asarray(points), _ROWS)
     return both[:, 0], both[:, 1:]

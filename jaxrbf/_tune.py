@@ -14,6 +14,7 @@ point it evaluated, never worse than the start.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 import time
 from collections.abc import Callable
@@ -195,6 +196,71 @@ def _rescaled(state, y, scale):
     return state
 
 
+#: Options of the quasi-Newton steps (`_given` is linear in y: either mode is exact and cheap).
+_QN_OPTIONS = {"autodiff_mode": "fwd"}
+
+
+def _given(y, args):
+    """The objective as a quasi-Newton step sees it: its value and gradient at the point the step
+    evaluates (`state.y_eval`, computed outside the step and passed in `args` with the scale),
+    as a function of y with that value and derivative there."""
+    scale, f, g = args
+    lin = sum(jnp.sum(g[k] * (y[k] - jax.lax.stop_gradient(y[k]))) for k in y)
+    return (f + lin) / scale, None
+
+
+# Compiled once per solver and parameter names (not per call, kernel or data): the objective is
+# evaluated outside them.
+@eqx.filter_jit
+def _qn_init(solver, y, args):
+    f_struct = jax.ShapeDtypeStruct((), jnp.float64)
+    return solver.init(_given, y, args, _QN_OPTIONS, f_struct, None, frozenset())
+
+
+@eqx.filter_jit
+def _qn_step(solver, y, state, args):
+    return solver.step(_given, y, args, _QN_OPTIONS, state, frozenset())
+
+
+@eqx.filter_jit
+def _qn_terminate(solver, y, state, args):
+    return solver.terminate(_given, y, args, _QN_OPTIONS, state, frozenset())
+
+
+def _evaluator(fn_obj, call, p, nrm, kernel, degree, fit_solver, fixed, lo, hi):
+    """y -> (objective, gradient dict) for the quasi-Newton loop of `tune`, on the host. The
+    held-out objective with LU fits: `objectives.held_out_value_and_grad` (its host-side data
+    prepared once); any other: forward mode through it, compiled for this call."""
+    from . import objectives as obj
+
+    if fn_obj is obj.held_out_error and fit_solver == "lu":
+        data = obj.held_out_data(p, nrm)
+        base = {
+            k: jnp.asarray(1.0 if fixed.get(k) is None else fixed[k], dtype=float) for k in PARAMS
+        }
+        bounds = [{k: jnp.asarray(v, dtype=float) for k, v in b.items()} for b in (lo, hi)]
+
+        def evaluate(y):
+            f, g, _ = obj.held_out_value_and_grad(
+                y, *bounds, base, data, kernel=kernel, degree=degree
+            )
+            return f, g
+
+        return evaluate
+
+    def value(y):
+        f = call(y, False)
+        return jnp.where(jnp.isnan(f), jnp.inf, f)
+
+    vg = jax.jit(lambda y: (value(y), jax.jacfwd(value)(y)))
+
+    def evaluate(y):
+        f, g = vg(y)
+        return f, {k: jnp.where(jnp.isfinite(f), v, 0.0) for k, v in g.items()}
+
+    return evaluate
+
+
 def support_floor(points, padding: float = 0.05, samples: int = 12) -> float:
     """The smallest radius for which every point of the points' bounding box, grown by
     `padding` of its size as `polygonize` does, has a sample within it (sampled on a
@@ -316,37 +382,51 @@ def tune(
             **({"residuals": True} if residuals else {}),
         )
 
-    # The objective is divided by `args` (a scale, an array: changing it does not recompile).
+    # The objective is divided by a scale (an array: changing it does not recompile).
     # Minimisers: BFGS starts from the identity Hessian, so its first move is the gradient itself;
     # after the first step (which only evaluates the start) the objective is rescaled so that
-    # this move changes the largest parameter by a factor of about 2, and the solver restarted.
-    if least_squares:
-
-        def fn(y, args):
-            r = call(y, True)
-            return jnp.where(jnp.isfinite(r), r, 1e3) / jnp.sqrt(args), None
-
-        f_struct = jax.eval_shape(lambda: fn(y0, 1.0)[0])
+    # this move changes the largest parameter by a factor of about 2.
+    #
+    # Quasi-Newton minimisers (BFGS, the default) evaluate the objective only at the point in
+    # their state (`y_eval`): there it is evaluated here, value and gradient from one compiled
+    # function (for the held-out objective: `objectives.held_out_value_and_grad`, the adjoint
+    # gradient, cached across calls), and handed to a step compiled once per solver (`_given`).
+    # Other solvers step the objective themselves (compiled with it, per call).
+    quasi_newton = isinstance(solver, optx.AbstractQuasiNewton)
+    if quasi_newton:
+        evaluate = _evaluator(fn_obj, call, p, nrm, kname, degree, fit_solver, fixed, lo, hi)
+        init = functools.partial(_qn_init, solver)
+        step = functools.partial(_qn_step, solver)
+        terminate = functools.partial(_qn_terminate, solver)
     else:
+        if least_squares:
 
-        def fn(y, args):
-            return call(y, False) / args, None
+            def fn(y, args):
+                r = call(y, True)
+                return jnp.where(jnp.isfinite(r), r, 1e3) / jnp.sqrt(args), None
 
-    f_struct = jax.ShapeDtypeStruct((), jnp.float64)
-    tags = frozenset()
-    # Forward mode: with a handful of parameters, one tangent solve each (reusing the
-    # factorisation) costs far less than reverse mode through n x n kernel matrices (measured:
-    # 1.4x a plain fit, against 4-6x).
-    # Least squares: optimistix's forward-mode Jacobian fed NaN tangents to lineax here (its
-    # checks fire inside the vmapped tangent solves), so it uses reverse mode.
-    options: dict = {"jac": "bwd"} if least_squares else {"autodiff_mode": "fwd"}
-    # Under jit like the steps (Gauss-Newton's init linearises fn; eagerly, lineax's checks
-    # then see abstract tangents and fail).
-    init = eqx.filter_jit(lambda y, a: solver.init(fn, y, a, options, f_struct, None, tags))
-    step = eqx.filter_jit(lambda y, st, a: solver.step(fn, y, a, options, st, tags))
-    terminate = eqx.filter_jit(lambda y, st, a: solver.terminate(fn, y, a, options, st, tags))
+            f_struct = jax.eval_shape(lambda: fn(y0, 1.0)[0])
+        else:
+
+            def fn(y, args):
+                return call(y, False) / args, None
+
+            f_struct = jax.ShapeDtypeStruct((), jnp.float64)
+        tags = frozenset()
+        # Least squares: optimistix's forward-mode Jacobian fed NaN tangents to lineax here
+        # (its checks fire inside the vmapped tangent solves), so it uses reverse mode.
+        options: dict = {"jac": "bwd"} if least_squares else {"autodiff_mode": "fwd"}
+        # Under jit like the steps (Gauss-Newton's init linearises fn; eagerly, lineax's checks
+        # then see abstract tangents and fail).
+        init = eqx.filter_jit(lambda y, a: solver.init(fn, y, a, options, f_struct, None, tags))
+        step = eqx.filter_jit(lambda y, st, a: solver.step(fn, y, a, options, st, tags))
+        terminate = eqx.filter_jit(lambda y, st, a: solver.terminate(fn, y, a, options, st, tags))
     scale = jnp.asarray(1.0)
-    state = init(y0, scale)
+
+    def step_args(f=None, g=None):
+        return (scale, f, g) if quasi_newton else scale
+
+    state = init(y0, step_args(jnp.zeros(()), y0))
 
     def current_f(st):
         info = st.f_info
@@ -365,7 +445,15 @@ def tune(
     with _progress(int(max_steps), verbose, f"tune {kname}") as bar:
         for steps in range(1, int(max_steps) + 1):
             try:
-                y_new, state, _ = step(y, state, scale)
+                if quasi_newton:
+                    f_eval, g_eval = evaluate(state.y_eval)
+                    if steps > 1 and np.isfinite(float(f_eval)) and float(f_eval) < best_f:
+                        # the best point evaluated, accepted by the line search or not
+                        best_y, best_f = state.y_eval, float(f_eval)
+                    a = step_args(f_eval, g_eval)
+                else:
+                    a = step_args()
+                y_new, state, _ = step(y, state, a)
             except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError) as e:
                 first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
                 message = f"the optimiser failed at step {steps}: {first}"
@@ -376,7 +464,7 @@ def tune(
                     ) from e
                 break
             y = y_new
-            done, result = terminate(y, state, scale)
+            done, result = terminate(y, state, a)
             f_acc = current_f(state)
             if steps == 1:
                 f0 = f_acc
@@ -390,7 +478,9 @@ def tune(
                     g = max(float(jnp.max(jnp.abs(v))) for v in jax.tree.leaves(grad))
                     if np.isfinite(g) and g > 0:
                         scale = jnp.asarray(g / 0.7)
-                        state = _rescaled(state, y, scale) or init(y0, scale)
+                        state = _rescaled(state, y, scale) or init(
+                            y0, step_args(*(a[1:] if quasi_newton else ()))
+                        )
                         done = False
             point = dict(as_dict(y), objective=f_acc)
             path.append(point)

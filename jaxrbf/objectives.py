@@ -23,6 +23,9 @@ Precision: float64 throughout (the solves of `jaxrbf.fit`).
 
 from __future__ import annotations
 
+import functools
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -38,6 +41,8 @@ __all__ = [
     "point_spacing",
     "sign_probes",
     "split_samples",
+    "held_out_data",
+    "held_out_value_and_grad",
     "OFFSET_LIMIT",
 ]
 
@@ -100,20 +105,25 @@ def surface_error(model, points, normals, length, *, probes=None, residuals: boo
     With `residuals=True`, the vector whose squares sum to that value (for least-squares solvers
     such as Levenberg-Marquardt)."""
     p = jnp.asarray(points, dtype=float)
+    fq = side = None
+    if probes is not None and len(probes[0]):
+        fq, side = model(jnp.asarray(probes[0])), jnp.asarray(probes[1])
+    return _error_terms(model(p), model.gradient(p), normals, length, fq, side, residuals)
+
+
+def _error_terms(f, g, normals, length, fq=None, side=None, residuals: bool = False):
+    """`surface_error` from the values `f` and gradients `g` at the points (and `fq` at the
+    probes, on their `side`)."""
     nrm = jnp.asarray(normals, dtype=float)
     nrm = nrm / jnp.linalg.norm(nrm, axis=1, keepdims=True)
-    f = model(p)
-    g = model.gradient(p)
     gn = jnp.sqrt(jnp.sum(g * g, axis=1) + 1e-300)
     dist = jnp.abs(f) / gn / length
     mis = 1.0 - jnp.sum(g * nrm, axis=1) / gn
-    n = p.shape[0]
+    n = f.shape[0]
     terms = [dist / n, jnp.maximum(mis, 0.0) / n]
-    if probes is not None:
-        q, side = probes
-        if len(q):
-            wrong = jax.nn.sigmoid(-jnp.asarray(side) * model(jnp.asarray(q)) / (0.5 * length))
-            terms.append(SIGN_WEIGHT * wrong / len(q))
+    if fq is not None and fq.shape[0]:
+        wrong = jax.nn.sigmoid(-side * fq / (0.5 * length))
+        terms.append(SIGN_WEIGHT * wrong / fq.shape[0])
     if residuals:
         return jnp.sqrt(jnp.concatenate(terms) + 1e-30)
     return sum(jnp.sum(t) for t in terms)
@@ -188,6 +198,247 @@ def held_out_error(
         model, p[test], nrm[test], point_spacing(p), probes=probes, residuals=residuals
     )
     return jnp.where(ok, err, jnp.inf)
+
+
+class HeldOutData(NamedTuple):
+    """The host-side part of `held_out_error`, computed once (`held_out_data`) for
+    `held_out_value_and_grad`: the training samples with their off-surface points' origins,
+    normals and offset caps (those with a NaN cap left out), the held-out samples, the length
+    unit and the sign probes (empty unless asked for)."""
+
+    surface: Array
+    out_p: Array
+    out_n: Array
+    out_cap: Array
+    in_p: Array
+    in_n: Array
+    in_cap: Array
+    test_p: Array
+    test_n: Array
+    length: Array
+    probe_q: Array
+    probe_side: Array
+
+
+def held_out_data(
+    points, normals, *, holdout: float = 0.2, seed: int = 0, test=None, use_probes: bool = False
+) -> HeldOutData:
+    """The host-side preparation of `held_out_error` (split, offset caps, point spacing, probes),
+    as arrays for `held_out_value_and_grad`. Host (KD-trees)."""
+    from ._constraints import _unit_normals, offset_caps
+    from ._prepare import diagonal
+    from .io import as_points
+
+    p = as_points(points, "points")
+    nrm = _unit_normals(normals, len(p), p.shape[1])
+    if test is None:
+        train, test = split_samples(len(p), holdout, seed)
+    else:
+        test = np.asarray(test)
+        train = np.setdiff1d(np.arange(len(p)), test)
+    pt, nt = p[train], nrm[train]
+    caps = offset_caps(pt, nt, OFFSET_LIMIT * diagonal(pt))
+    ko, ki = np.isfinite(caps[0]), np.isfinite(caps[1])
+    if use_probes:
+        q, side = sign_probes(p, nrm)
+    else:
+        q, side = np.zeros((0, p.shape[1])), np.zeros(0)
+    a = functools.partial(jnp.asarray, dtype=float)
+    return HeldOutData(
+        a(pt),
+        a(pt[ko]),
+        a(nt[ko]),
+        a(caps[0][ko]),
+        a(pt[ki]),
+        a(nt[ki]),
+        a(caps[1][ki]),
+        a(p[test]),
+        a(nrm[test]),
+        a(point_spacing(p)),
+        a(q),
+        a(side),
+    )
+
+
+def _theta(y, lo, hi, base):
+    v = dict(base)
+    for k in y:
+        v[k] = jnp.exp(jnp.clip(y[k], lo[k], hi[k]))
+    return v
+
+
+def _held_out_parts(th, data: HeldOutData, kernel: str, shift=None, scale=None):
+    """Normalised constraint points, values, kernel and smoothing of the held-out fit at the
+    parameters `th` (the unit-box transform from the points, as constants, unless given)."""
+    from ._difffit import unit_box
+    from .kernels import kernel_class, make_kernel
+
+    d = data
+    do = jnp.minimum(th["offset"], d.out_cap)
+    di = jnp.minimum(th["offset"], d.in_cap)
+    x = jnp.concatenate([d.surface, d.out_p + do[:, None] * d.out_n, d.in_p - di[:, None] * d.in_n])
+    h = jnp.concatenate([jnp.zeros(d.surface.shape[0]), do, -di])
+    if shift is None:
+        shift, scale = unit_box(x)
+    cls = kernel_class(kernel)
+    kern = make_kernel(kernel, th["radius"] if cls.has_radius else None)
+    sm = th["smoothing"] / scale**cls.homogeneity
+    return (x - shift) / scale, h, kern.scaled(1.0 / scale), sm, shift, scale
+
+
+@functools.partial(jax.jit, static_argnames=("kernel", "degree"))
+def _held_out_solve(y, lo, hi, base, data, *, kernel, degree):
+    from ._fit import RESIDUAL_TOL
+    from ._system import saddle_matrix
+
+    xn, h, kn, sm, shift, scale = _held_out_parts(_theta(y, lo, hi, base), data, kernel)
+    b = saddle_matrix(kn, xn, degree, sm)
+    rhs = jnp.concatenate([h, jnp.zeros(b.shape[0] - h.shape[0])])
+    lu = jax.scipy.linalg.lu_factor(b)
+    z = jax.scipy.linalg.lu_solve(lu, rhs)
+    residual = jnp.max(jnp.abs(b @ z - rhs)) / jnp.maximum(jnp.max(jnp.abs(h)), 1e-300)
+    ok = jnp.all(jnp.isfinite(z)) & (residual <= RESIDUAL_TOL)
+    return lu, z, residual, ok, shift, scale
+
+
+def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
+    """`surface_error` of the held-out fit with weights and coefficients `z` at log-parameters
+    `y` (values and gradients written out: a small program to compile and differentiate)."""
+    from ._model import RBFModel
+
+    n = data.surface.shape[0] + data.out_p.shape[0] + data.in_p.shape[0]
+    xn, _, kn, _, _, _ = _held_out_parts(_theta(y, lo, hi, base), data, kernel, shift, scale)
+    model = RBFModel(
+        centres=xn,
+        weights=z[:n],
+        coeffs=z[n:],
+        kernel=kn,
+        shift=shift,
+        scale=scale,
+        residual=jnp.zeros(()),
+        degree=degree,
+    )
+    f, g = model._value_grad_normalised((data.test_p - shift) / scale)
+    fq = None
+    if data.probe_q.shape[0]:
+        fq = model._eval_normalised((data.probe_q - shift) / scale)
+    return _error_terms(f, g / scale, data.test_n, data.length, fq, data.probe_side)
+
+
+@functools.partial(jax.jit, static_argnames=("kernel", "degree"))
+def _held_out_error_and_adjoint(z, lu, y, lo, hi, base, data, shift, scale, *, kernel, degree):
+    def error(z):
+        return _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree)
+
+    e, gz = jax.value_and_grad(error)(z)
+    return e, jax.scipy.linalg.lu_solve(lu, gz, trans=1)
+
+
+def _dphi_dr2(kern, r2):
+    """d phi / d(r^2) of `kern`, elementwise: closed forms for the kernels of
+    `jaxrbf.kernels` (measured: XLA compiles the forward-mode derivative of Wendland's
+    function, through its clip and safe square root, to a pass about 8x slower), forward mode
+    for any other."""
+    name = getattr(kern, "name", None)
+    pos = r2 > 0
+    if name in ("gaussian", "multiquadric", "inverse-multiquadric", "wendland"):
+        rr = kern.radius**2
+        u = 1.0 + r2 / rr
+        if name == "gaussian":
+            return -jnp.exp(-r2 / rr) / rr
+        if name == "multiquadric":
+            return -0.5 / (rr * jnp.sqrt(u))
+        if name == "inverse-multiquadric":
+            return -0.5 / (rr * u * jnp.sqrt(u))
+        s = jnp.maximum(1.0 - jnp.sqrt(r2) / kern.radius, 0.0)
+        return -10.0 * s * s * s / rr
+    if name == "cubic":
+        return 1.5 * jnp.sqrt(r2)
+    if name == "thin-plate":
+        return jnp.where(pos, 0.5 * (jnp.log(jnp.where(pos, r2, 1.0)) + 1.0), 0.0)
+    if name == "linear":
+        return jnp.where(pos, -0.5 / jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
+    return jax.jvp(kern.from_r2, (r2,), (jnp.ones_like(r2),))[1]
+
+
+@functools.partial(jax.jit, static_argnames=("kernel", "degree", "name"))
+def _held_out_coupling(z, lam, y, lo, hi, base, data, shift, scale, *, kernel, degree, name):
+    # d/dy[name] of E(z, y) - lam^T (B(y) z - [h(y); 0]) at fixed lam and z. The kernel block's
+    # term, sum_ij lam_i z_j phi(r_ij^2), is differentiated by hand in one elementwise pass that
+    # XLA fuses into the sum (no n x n tangent is stored): d(r_ij^2) from the points' tangents
+    # and, for the radius R (every kernel with one is a function of r^2 / R^2),
+    # d phi = -2 r^2 phi'(r^2) d(log R). The rest (held-out error, polynomial block, values,
+    # smoothing) is small and differentiated by forward mode.
+    from ._model import pairwise_sq, poly_basis
+
+    n = data.surface.shape[0] + data.out_p.shape[0] + data.in_p.shape[0]
+    w, a, lw, la = z[:n], z[n:], lam[:n], lam[n:]
+
+    def parts(v):
+        return _held_out_parts(
+            _theta(dict(y, **{name: v}), lo, hi, base), data, kernel, shift, scale
+        )
+
+    def rest(v):
+        xn, h, _, sm, _, _ = parts(v)
+        pb = poly_basis(xn, degree)
+        coupling = (
+            sm * jnp.dot(lw, w) + jnp.dot(lw, pb @ a) + jnp.dot(la, pb.T @ w) - jnp.dot(lw, h)
+        )
+        yy = dict(y, **{name: v})
+        err = _held_out_error_at(z, yy, lo, hi, base, data, shift, scale, kernel, degree)
+        return err - coupling
+
+    v0, t0 = y[name], jnp.ones_like(y[name])
+    d_rest = jax.jvp(rest, (v0,), (t0,))[1]
+    xn, _, kn, _, _, _ = parts(v0)
+    r2 = pairwise_sq(xn, xn)
+    if name == "offset":
+        dx = jax.jvp(lambda v: parts(v)[0], (v0,), (t0,))[1]
+        dr2 = 0.0
+        for k in range(xn.shape[1]):
+            dr2 = dr2 + 2.0 * (xn[:, k, None] - xn[None, :, k]) * (dx[:, k, None] - dx[None, :, k])
+    elif name == "radius" and hasattr(kn, "radius"):
+        dlog = jax.jvp(lambda v: jnp.log(parts(v)[2].radius), (v0,), (t0,))[1]
+        dr2 = -2.0 * r2 * dlog
+    else:
+        return d_rest
+    d_kernel = jnp.sum(lw[:, None] * _dphi_dr2(kn, r2) * dr2 * w[None, :])
+    return d_rest - d_kernel
+
+
+def held_out_value_and_grad(y, lo, hi, base, data: HeldOutData, *, kernel: str, degree: int = 1):
+    """`held_out_error` (with `solver="lu"`) and its gradient with respect to log-parameters,
+    from a few compiled functions cached across calls (same kernel, degree and shapes).
+
+    **Arguments:**
+    - `y`: dict of log-parameters (names among `offset`, `radius`, `smoothing`); each parameter is
+      exp(clip(y[k], lo[k], hi[k])).
+    - `lo`, `hi`: dicts of bounds on y (same keys). `base`: dict of all three parameters' values
+      (those not in `y` are held there; the radius is ignored for kernels without one).
+    - `data`: from `held_out_data`. `kernel` (a name), `degree`: as for `jaxrbf.fit`.
+
+    **Returns:** (value, gradient dict like `y`, ok), JAX arrays: inf and a zero gradient where
+    the fit fails.
+
+    The gradient is the adjoint one: one LU factorisation of B serves the fit (B z = [h; 0]) and
+    the adjoint (B^T lam = dE/dz), and dE/dy = (partial E / partial y) at fixed z minus
+    d(lam^T (B z - [h; 0])) / dy at fixed lam and z: per parameter one fused elementwise pass over
+    the kernel matrix, no n x n tangent matrix and no further solve (tests/test_tune.py checks it
+    against forward mode through `held_out_error`)."""
+    y = {k: jnp.asarray(v, dtype=float) for k, v in y.items()}
+    args = (lo, hi, base, data)
+    lu, z, _, ok, shift, scale = _held_out_solve(y, *args, kernel=kernel, degree=degree)
+    e, lam = _held_out_error_and_adjoint(
+        z, lu, y, *args, shift, scale, kernel=kernel, degree=degree
+    )
+    grad = {}
+    for k in y:
+        gk = _held_out_coupling(
+            z, lam, y, *args, shift, scale, kernel=kernel, degree=degree, name=k
+        )
+        grad[k] = jnp.where(ok, gk, 0.0)
+    return jnp.where(ok, e, jnp.inf), grad, ok
 
 
 def kfold_error(

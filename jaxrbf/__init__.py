@@ -29,6 +29,8 @@ from ._clean import remove_outliers as remove_outliers
 from ._constraints import Constraints as Constraints
 from ._constraints import offset_caps as offset_caps
 from ._constraints import surface_constraints as surface_constraints
+from ._denoise import SmoothingReport as SmoothingReport
+from ._denoise import choose_smoothing as choose_smoothing
 from ._errors import InputError as InputError
 from ._errors import JaxRBFError as JaxRBFError
 from ._errors import SolveError as SolveError
@@ -46,6 +48,7 @@ from ._reconstruct import constraints_from as constraints_from
 from ._reconstruct import example as example
 from ._reconstruct import fit_surface as fit_surface
 from ._reconstruct import reconstruct as reconstruct
+from ._reconstruct import surface_from as surface_from
 from ._serialize import load as load
 from ._serialize import save as save
 from ._tune import TuneReport as TuneReport

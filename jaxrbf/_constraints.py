@@ -166,32 +166,7 @@ class Constraints(eqx.Module):
           area-weighted vertex normals, subsampled at random to `points` if given.
         - `seed`: for the random sampling.
         """
-        v = as_points(vertices, "vertices", (3,))
-        f = np.asarray(faces)
-        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
-            raise InputError(
-                f"`faces` must be a non-empty (m, 3) array of vertex indices, got shape {f.shape}"
-            )
-        if f.min() < 0 or f.max() >= len(v):
-            raise InputError(
-                f"`faces` refers to vertex {int(f.max())} but there are only {len(v)} vertices"
-            )
-        f = f.astype(np.int64)
-        if points is not None and int(points) < 1:
-            raise InputError(f"`points` must be a positive number of samples, got {points}")
-        if sampling == "faces":
-            p, nrm = sample_faces(v, f, int(points) if points else len(v), seed)
-        elif sampling == "vertices":
-            used = np.zeros(len(v), dtype=bool)
-            used[f.ravel()] = True
-            vn = vertex_normals(v, f)
-            used &= np.linalg.norm(vn, axis=1) > 0
-            p, nrm = v[used], vn[used]
-            if points and int(points) < len(p):
-                idx = np.random.default_rng(seed).choice(len(p), int(points), replace=False)
-                p, nrm = p[idx], nrm[idx]
-        else:
-            raise InputError(f"`sampling` must be 'faces' or 'vertices', got {sampling!r}")
+        p, nrm = mesh_samples(vertices, faces, points=points, sampling=sampling, seed=seed)
         return cls.from_points(p, nrm, offset, validate=validate)
 
     @classmethod
@@ -214,16 +189,8 @@ class Constraints(eqx.Module):
         A closed polyline's normals point out of the region it encloses; an open polyline's point
         to the right of its walking direction.
         """
-        v = as_points(vertices, "vertices", (2,))
-        if closed is None:
-            closed = len(v) > 2 and bool(np.all(v[0] == v[-1]))
-        if closed and len(v) > 1 and np.all(v[0] == v[-1]):
-            v = v[:-1]
-        if len(v) < (3 if closed else 2):
-            raise InputError(
-                f"a {'closed' if closed else 'open'} polyline needs at least {3 if closed else 2} distinct vertices, got {len(v)}"
-            )
-        return cls.from_points(v, polyline_normals(v, closed), offset, validate=validate)
+        v, nrm = polyline_samples(vertices, closed)
+        return cls.from_points(v, nrm, offset, validate=validate)
 
     def report(self) -> str:
         """One line that says what the constraints hold."""
@@ -236,6 +203,57 @@ class Constraints(eqx.Module):
         if self.n_dropped:
             extras.append(f"{self.n_dropped} off-surface points dropped")
         return line + (f"; {', '.join(extras)}" if extras else "")
+
+
+def mesh_samples(
+    vertices, faces, *, points: int | None = None, sampling: str = "faces", seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Surface points and outward normals of a triangle mesh (host), as `Constraints.from_mesh`
+    uses them: `points` uniform samples with their faces' normals (`sampling="faces"`; default as
+    many as the mesh has vertices), or the vertices with area-weighted normals
+    (`sampling="vertices"`, subsampled at random to `points` if given)."""
+    v = as_points(vertices, "vertices", (3,))
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise InputError(
+            f"`faces` must be a non-empty (m, 3) array of vertex indices, got shape {f.shape}"
+        )
+    if f.min() < 0 or f.max() >= len(v):
+        raise InputError(
+            f"`faces` refers to vertex {int(f.max())} but there are only {len(v)} vertices"
+        )
+    f = f.astype(np.int64)
+    if points is not None and int(points) < 1:
+        raise InputError(f"`points` must be a positive number of samples, got {points}")
+    if sampling == "faces":
+        p, nrm = sample_faces(v, f, int(points) if points else len(v), seed)
+    elif sampling == "vertices":
+        used = np.zeros(len(v), dtype=bool)
+        used[f.ravel()] = True
+        vn = vertex_normals(v, f)
+        used &= np.linalg.norm(vn, axis=1) > 0
+        p, nrm = v[used], vn[used]
+        if points and int(points) < len(p):
+            idx = np.random.default_rng(seed).choice(len(p), int(points), replace=False)
+            p, nrm = p[idx], nrm[idx]
+    else:
+        raise InputError(f"`sampling` must be 'faces' or 'vertices', got {sampling!r}")
+    return p, nrm
+
+
+def polyline_samples(vertices, closed: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices of a 2-D polyline and their normals from its segments (host), as
+    `Constraints.from_polyline` uses them (a repeated closing vertex is dropped)."""
+    v = as_points(vertices, "vertices", (2,))
+    if closed is None:
+        closed = len(v) > 2 and bool(np.all(v[0] == v[-1]))
+    if closed and len(v) > 1 and np.all(v[0] == v[-1]):
+        v = v[:-1]
+    if len(v) < (3 if closed else 2):
+        raise InputError(
+            f"a {'closed' if closed else 'open'} polyline needs at least {3 if closed else 2} distinct vertices, got {len(v)}"
+        )
+    return v, polyline_normals(v, closed)
 
 
 def offset_caps(points, normals, limit: float, steps: int = 12) -> np.ndarray:

@@ -103,6 +103,73 @@ def _clean_cloud(data, name: str, mode: str, outliers: bool, verbose: bool):
     return io.PointCloud(p, n)
 
 
+def surface_from(
+    source,
+    normals=None,
+    *,
+    points: int | None = None,
+    sampling: str = "faces",
+    seed: int = 0,
+    subsample: bool = False,
+    remove_outliers: bool = False,
+    verbose: bool = False,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The surface samples of `source` with outward normals: `(points, normals, diagonal)`, the
+    diagonal being that of the input (the unit of `offset` and `radius` fractions). Arguments as
+    for `constraints_from`. Host."""
+    from . import io
+    from ._constraints import mesh_samples, polyline_samples
+
+    if points is not None and int(points) < 1:
+        raise InputError(f"`points` must be a positive number, got {points}")
+    mode, normals = _normals_mode(normals)
+    if isinstance(source, (str, os.PathLike)):
+        if normals is not None:
+            raise InputError(
+                "`normals` as an array goes with an array of points; with a file give "
+                "'auto', 'given' or 'estimate'"
+            )
+        data = io.read_input(source)
+        name = os.fspath(source)
+    else:
+        data = io.PointCloud(
+            io.as_points(source, "points"),
+            None if normals is None else np.asarray(normals, dtype=float),
+        )
+        name = "the points"
+    if isinstance(data, io.Mesh):
+        v, f = data.vertices, data.faces
+        check_not_flat(v, f"vertices of {name}")
+        k = points if points is not None else min(len(v), DEFAULT_POINTS)
+        if verbose and points is None and len(v) > DEFAULT_POINTS:
+            log(
+                f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)"
+            )
+        p, n = mesh_samples(v, f, points=k, sampling=sampling, seed=seed)
+        return p, n, diagonal(v)
+    if isinstance(data, io.Polyline):
+        p, n = polyline_samples(data.vertices, data.closed)
+        return p, n, diagonal(data.vertices)
+    data = _clean_cloud(data, name, mode, remove_outliers, verbose)
+    check_not_flat(data.points, f"points of {name}")
+    if points is None and subsample and len(data.points) > DEFAULT_POINTS:
+        points = DEFAULT_POINTS
+        if verbose:
+            log(
+                f"{name}: using {DEFAULT_POINTS:,} of {len(data.points):,} points for the "
+                "dense method (set --points, or --method auto|partition for all)"
+            )
+    p, n = _subsample(data.points, data.normals, points, seed)
+    return p, n, diagonal(p)
+
+
+def _offset_fraction(offset) -> float:
+    frac = DEFAULT_OFFSET if offset is None else float(offset)
+    if not (np.isfinite(frac) and frac > 0):
+        raise InputError(f"`offset` must be a positive fraction of the diagonal, got {offset!r}")
+    return frac
+
+
 def constraints_from(
     source,
     normals=None,
@@ -135,51 +202,18 @@ def constraints_from(
     - `remove_outliers`: drop statistical outliers of a point cloud first
       (`jaxrbf.remove_outliers` with its defaults).
     """
-    from . import io
-
-    frac = DEFAULT_OFFSET if offset is None else float(offset)
-    if not (np.isfinite(frac) and frac > 0):
-        raise InputError(f"`offset` must be a positive fraction of the diagonal, got {offset!r}")
-    if points is not None and int(points) < 1:
-        raise InputError(f"`points` must be a positive number, got {points}")
-    mode, normals = _normals_mode(normals)
-    if isinstance(source, (str, os.PathLike)):
-        if normals is not None:
-            raise InputError(
-                "`normals` as an array goes with an array of points; with a file give "
-                "'auto', 'given' or 'estimate'"
-            )
-        data = io.read_input(source)
-        name = os.fspath(source)
-    else:
-        data = io.PointCloud(
-            io.as_points(source, "points"),
-            None if normals is None else np.asarray(normals, dtype=float),
-        )
-        name = "the points"
-    if isinstance(data, io.Mesh):
-        v, f = data.vertices, data.faces
-        check_not_flat(v, f"vertices of {name}")
-        k = points if points is not None else min(len(v), DEFAULT_POINTS)
-        if verbose and points is None and len(v) > DEFAULT_POINTS:
-            log(
-                f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)"
-            )
-        c = Constraints.from_mesh(v, f, frac * diagonal(v), points=k, sampling=sampling, seed=seed)
-    elif isinstance(data, io.Polyline):
-        c = Constraints.from_polyline(data.vertices, data.closed, frac * diagonal(data.vertices))
-    else:
-        data = _clean_cloud(data, name, mode, remove_outliers, verbose)
-        check_not_flat(data.points, f"points of {name}")
-        if points is None and subsample and len(data.points) > DEFAULT_POINTS:
-            points = DEFAULT_POINTS
-            if verbose:
-                log(
-                    f"{name}: using {DEFAULT_POINTS:,} of {len(data.points):,} points for the "
-                    "dense method (set --points, or --method auto|partition for all)"
-                )
-        p, n = _subsample(data.points, data.normals, points, seed)
-        c = Constraints.from_points(p, n, frac * diagonal(p))
+    frac = _offset_fraction(offset)
+    p, n, diag = surface_from(
+        source,
+        normals,
+        points=points,
+        sampling=sampling,
+        seed=seed,
+        subsample=subsample,
+        remove_outliers=remove_outliers,
+        verbose=verbose,
+    )
+    c = Constraints.from_points(p, n, frac * diag)
     if verbose:
         log(c.report())
     return c
@@ -193,6 +227,7 @@ def fit_surface(
     radius: float | None = None,
     degree: int = 1,
     smoothing: float = 0.0,
+    denoise: bool = False,
     solver: str | None = None,
     method: str = "auto",
     points: int | None = None,
@@ -212,6 +247,8 @@ def fit_surface(
     beyond). For the dense and global methods `solver` defaults to `cg` (Schwarz-preconditioned
     conjugate gradients: 3-4x faster than a dense solve at 12,000 constraints) except for the
     Gaussian, whose fast-decaying spectrum defeats iterative solvers: it gets `lu`.
+    `smoothing`: lambda (A + lambda I), in the input's units; `denoise=True` chooses it instead,
+    by the held-out error on crops of the input (`jaxrbf.choose_smoothing`; 0 for clean input).
     `normals` and `remove_outliers` as for `constraints_from`.
     """
     from ._fit import METHODS
@@ -219,18 +256,24 @@ def fit_surface(
 
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    c = constraints_from(
+    if denoise and smoothing:
+        raise InputError(
+            f"give `smoothing` ({smoothing!r}) or `denoise` (which chooses it), not both"
+        )
+    frac = _offset_fraction(offset)
+    p, n, diag = surface_from(
         source,
         normals,
         points=points,
         sampling=sampling,
-        offset=offset,
         seed=seed,
         subsample=method == "dense",
         remove_outliers=remove_outliers,
         verbose=verbose,
     )
+    c = Constraints.from_points(p, n, frac * diag)
     dim = c.points.shape[1]
+    surface = np.asarray(c.points[: c.n_surface])
     if kernel is None:
         kernel = "cubic" if dim == 3 else "thin-plate"
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
@@ -238,7 +281,6 @@ def fit_surface(
     if cls.has_radius and not isinstance(kernel, AbstractKernel):
         from ._tune import default_radius
 
-        surface = np.asarray(c.points[: c.n_surface])
         if radius is None:
             r = default_radius(cls.name, surface)
         else:
@@ -250,24 +292,30 @@ def fit_surface(
         # The partition's patches span a few point spacings; an offset of 1% of the diagonal puts
         # the off-surface points outside them once the points are dense (1M points: ~10
         # spacings), and the local fits then see only zeros. Keep d within reach.
-        surface = np.asarray(c.points[: c.n_surface])
-        frac = partition_offset(surface)
-        if frac < DEFAULT_OFFSET:
+        near = partition_offset(surface)
+        if near < DEFAULT_OFFSET:
             if verbose:
                 log(
-                    f"partition: offset {frac:.4f} of the diagonal ({PARTITION_OFFSET_SPACINGS:g} "
+                    f"partition: offset {near:.4f} of the diagonal ({PARTITION_OFFSET_SPACINGS:g} "
                     "point spacings) instead of the default, so that patches hold off-surface points"
                 )
-            c = constraints_from(
-                source,
-                normals,
-                points=points,
-                sampling=sampling,
-                offset=frac,
-                seed=seed,
-                remove_outliers=remove_outliers,
-                verbose=verbose,
-            )
+            frac = near
+            c = Constraints.from_points(p, n, frac * diag)
+    if verbose:
+        log(c.report())
+    if denoise:
+        from ._denoise import choose_smoothing
+
+        smoothing = choose_smoothing(
+            p,
+            n,
+            kernel=kernel if isinstance(kernel, AbstractKernel) else cls.name,
+            offset=frac * diag,
+            radius=r,
+            degree=degree,
+            seed=seed,
+            verbose=verbose,
+        ).smoothing
     if solver is None and method != "partition":
         solver = "lu" if cls.name == "gaussian" else "cg"
     return fit(
@@ -323,8 +371,9 @@ def reconstruct(
     """`source` (a mesh, point cloud or polyline file, or points + normals) to a surface.
 
     **Arguments:** `resolution` and `project` as for `polygonize`; every other option as for
-    `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `solver`, `method`, `points`,
-    `sampling`, `offset`, `seed`, `remove_outliers`); `normals` as for `constraints_from`.
+    `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `denoise`, `solver`, `method`,
+    `points`, `sampling`, `offset`, `seed`, `remove_outliers`); `normals` as for
+    `constraints_from`.
 
     **Returns:** a `jaxrbf.io.Mesh` for 3-D input; for a 2-D polyline, a list of (k, 2) curves.
     """

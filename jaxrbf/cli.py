@@ -84,6 +84,12 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         help="point clouds: drop statistical outliers (mean distance to 16 neighbours more "
         "than 2 standard deviations above the mean) first",
     )
+    g.add_argument(
+        "--denoise",
+        action="store_true",
+        help="noisy input: approximate instead of interpolating, with the smoothing lambda "
+        "chosen by the held-out error on crops of the input (stays 0 for clean input)",
+    )
 
 
 def _mesh_options(p: argparse.ArgumentParser) -> None:
@@ -136,6 +142,27 @@ def _tune_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int, default=0, help="seed of the surface sampling")
 
 
+def _tune_source(source, args):
+    """`(points or path, normals or None)` for `tune_surface`: a point-cloud file without normals
+    (or with --normals estimate) gets estimated normals, as `reconstruct` would."""
+    from . import io
+    from ._reconstruct import _clean_cloud, _normals_mode
+
+    if source[1] is not None or not isinstance(source[0], (str, os.PathLike)):
+        return source
+    mode, _ = _normals_mode(getattr(args, "normals", "auto"))
+    outliers = getattr(args, "remove_outliers", False)
+    if mode == "given" and not outliers:
+        return source
+    data = io.read_input(source[0])
+    if not isinstance(data, io.PointCloud) or (
+        data.normals is not None and mode == "auto" and not outliers
+    ):
+        return source
+    data = _clean_cloud(data, os.fspath(source[0]), mode, outliers, not args.quiet)
+    return data.points, data.normals
+
+
 def _tuned(source, args, **extra):
     """`tune_surface` on the CLI's options: (model, report)."""
     import optimistix as optx
@@ -143,6 +170,7 @@ def _tuned(source, args, **extra):
     from ._tune import tune_surface
 
     solver = optx.LevenbergMarquardt(rtol=1e-3, atol=1e-3) if extra.pop("lm", False) else None
+    source = _tune_source(source, args)
     return tune_surface(
         source[0],
         source[1],
@@ -295,6 +323,7 @@ def _fit_kwargs(args) -> dict:
         offset=args.offset,
         seed=args.seed,
         remove_outliers=args.remove_outliers,
+        denoise=args.denoise,
         verbose=not args.quiet,
     )
 
@@ -417,6 +446,12 @@ def _run(args) -> int:
                 raise InputError(
                     "--tune fits one dense system per step: use it with --method dense (or auto) "
                     "and --solver lu or cholesky (or none)"
+                )
+            if args.denoise:
+                raise InputError(
+                    "--tune and --denoise are separate choices: --denoise picks the smoothing for "
+                    "a fit of every point; to tune it, use `jaxrbf tune --params offset smoothing "
+                    "--smoothing 1e-6` (a starting lambda > 0)"
                 )
             model, _ = _tuned(source, args)
         else:

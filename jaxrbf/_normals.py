@@ -33,6 +33,10 @@ UNSURE_ANGLE = 60.0
 K_MIN, K_MAX = 8, 30
 #: A tree edge crosses a gap between two sheets when it runs this close to both normals (cosine).
 CROSS = 0.5
+#: Rounds of the neighbour vote after the tree (see `_vote`), and the majority it needs to flip.
+VOTE_ROUNDS, VOTE_MAJORITY = 3, 0.6
+#: A normal whose mean |cos| with its neighbours' is below this is refilled from theirs.
+DOUBT = 0.5
 #: Trimmed neighbourhoods must be this much flatter to replace the plain PCA (see `_one_sheet`).
 SHEET_GAIN = 4.0
 
@@ -135,6 +139,58 @@ def _outward(p: np.ndarray, n: np.ndarray) -> bool:
     return bool(w.sum() >= 0)
 
 
+def _vote(normals, rows, cols, same_sheet) -> tuple[np.ndarray, int]:
+    """Flip the normals that most of their graph neighbours on the same sheet disagree with.
+
+    One wrong turn in the spanning tree flips a whole branch; on noisy scans most branches that go
+    wrong are a single leaf (a point whose noisy neighbourhood tilted its normal, or whose edge to
+    its parent looked like a gap between two sheets). Each round, a point whose neighbours (edges
+    of the Riemannian graph, weighted by |n_i . n_j|, without the edges that run along the normals:
+    those may cross to the other face of a thin part) disagree with it by a weighted majority of
+    `VOTE_MAJORITY` is flipped. Returns the normals and how many it flipped in all."""
+    n_pts = len(normals)
+    r, c = rows[same_sheet], cols[same_sheet]
+    r, c = np.concatenate([r, c]), np.concatenate([c, r])  # both directions
+    total = 0
+    for _ in range(VOTE_ROUNDS):
+        dot = np.einsum("ij,ij->i", normals[r], normals[c])
+        w = np.abs(dot)
+        against = np.bincount(r, weights=w * (dot < 0), minlength=n_pts)
+        weight = np.bincount(r, weights=w, minlength=n_pts)
+        flip = against > VOTE_MAJORITY * np.maximum(weight, 1e-300)
+        if not flip.any():
+            break
+        normals = np.where(flip[:, None], -normals, normals)
+        total += int(flip.sum())
+    return normals, total
+
+
+def _fill_doubtful(normals, rows, cols, same_sheet) -> np.ndarray:
+    """Replace the normals whose axis disagrees with most of their neighbours' (mean |n_i . n_j|
+    below `DOUBT`) by the mean of those neighbours' normals, weighted by their own agreement.
+
+    At a sharp edge or a corner the neighbourhood is no plane, and the PCA axis can come out
+    across the surface instead of through it; its sign is then a coin toss. The neighbours'
+    oriented normals average to the bisector of the faces that meet there, which points out."""
+    n_pts = len(normals)
+    r, c = rows[same_sheet], cols[same_sheet]
+    r, c = np.concatenate([r, c]), np.concatenate([c, r])
+    agree = np.abs(np.einsum("ij,ij->i", normals[r], normals[c]))
+    count = np.bincount(r, minlength=n_pts)
+    trust = np.bincount(r, weights=agree, minlength=n_pts) / np.maximum(count, 1)
+    doubt = (trust < DOUBT) & (count > 0)
+    if not doubt.any():
+        return normals
+    pick = doubt[r]
+    acc = np.zeros_like(normals)
+    np.add.at(acc, r[pick], trust[c[pick], None] * normals[c[pick]])
+    size = np.linalg.norm(acc, axis=1)
+    ok = doubt & (size > 1e-12)
+    out = normals.copy()
+    out[ok] = acc[ok] / size[ok, None]
+    return out
+
+
 def estimate_normals(points, k: int | None = None, verbose: bool = False):
     """Oriented unit normals of a bare 3-D point cloud.
 
@@ -191,6 +247,7 @@ def estimate_normals(points, k: int | None = None, verbose: bool = False):
     e = p[cols] - p[rows]
     length = np.linalg.norm(e, axis=1)
     e = e / np.maximum(length, 1e-300)[:, None]
+    raw = normals
     ni, nj = normals[rows], normals[cols]
     parallel = 1.0 - np.abs(np.einsum("ij,ij->i", ni, nj))
     across = 0.5 * (np.abs(np.einsum("ij,ij->i", e, ni)) + np.abs(np.einsum("ij,ij->i", e, nj)))
@@ -231,8 +288,20 @@ def estimate_normals(points, k: int | None = None, verbose: bool = False):
         if not _outward(p[members], oriented):
             sign[members] *= -1.0
 
-    flipped = float(np.mean(sign < 0))
     normals = normals * sign[:, None]
+    # The vote looks wider than the tree (all k neighbours of the PCA): on noisy scans the
+    # nearest neighbours are often offset along the normal rather than beside the point.
+    vr = np.repeat(np.arange(n_pts), k)
+    vc = idx[:, 1:].reshape(-1)
+    ve = p[vc] - p[vr]
+    ve /= np.maximum(np.linalg.norm(ve, axis=1), 1e-300)[:, None]
+    along = np.minimum(
+        np.abs(np.einsum("ij,ij->i", ve, normals[vr])),
+        np.abs(np.einsum("ij,ij->i", ve, normals[vc])),
+    )
+    normals, _ = _vote(normals, vr, vc, along <= CROSS)
+    normals = _fill_doubtful(normals, vr, vc, along <= CROSS)
+    flipped = float(np.mean(np.einsum("ij,ij->i", normals, raw) < 0))
     report = NormalsReport(k=k, flipped=flipped, unsure=unsure, components=n_comp, n=len(p_all))
     if verbose:
         print(f"jaxrbf: {report.summary()}", file=sys.stderr, flush=True)

@@ -92,3 +92,23 @@ def test_reconstruct_removes_outliers_of_a_cloud(capsys):
     c = jaxrbf.constraints_from(pts, nrm, remove_outliers=True, verbose=True)
     assert "removed 3 outliers of 603" in capsys.readouterr().err
     assert c.n_surface == 600
+
+
+def test_strays_a_few_spacings_off_the_surface_are_removed():
+    p, n = sphere(3000)
+    dirs = np.random.default_rng(5).normal(size=(8, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    strays = dirs * 1.18  # ~3 spacings off the sphere (spacing 0.062)
+    far = np.random.default_rng(6).uniform(-2, 2, (30, 3))  # 1% far away: they set the std
+    far = far[np.linalg.norm(far, axis=1) > 1.5]
+    pts = np.vstack([p, strays, far])
+    kept_first, _, rep_first = jaxrbf.remove_outliers(pts, plane_ratio=None)
+    assert rep_first.off_plane == 0 and rep_first.plane_ratio is None
+    assert np.sum(np.linalg.norm(kept_first, axis=1) > 1.1) >= 4  # strays it keeps
+    kept, _, rep = jaxrbf.remove_outliers(pts)
+    r = np.linalg.norm(kept, axis=1)
+    assert np.all(r < 1.1)  # every stray gone
+    assert len(kept) >= 3000 - 3  # and hardly any surface point
+    assert rep.off_plane > 0 and "from its plane" in rep.summary()
+    with pytest.raises(jaxrbf.InputError, match="plane_ratio"):
+        jaxrbf.remove_outliers(pts, plane_ratio=-1.0)

@@ -240,9 +240,9 @@ def _evaluator(fn_obj, call, p, nrm, kernel, degree, fit_solver, fixed, lo, hi):
         }
         bounds = [{k: jnp.asarray(v, dtype=float) for k, v in b.items()} for b in (lo, hi)]
 
-        def evaluate(y):
+        def evaluate(y, gradient=True):
             f, g, _ = obj.held_out_value_and_grad(
-                y, *bounds, base, data, kernel=kernel, degree=degree
+                y, *bounds, base, data, kernel=kernel, degree=degree, gradient=gradient
             )
             return f, g
 
@@ -252,9 +252,13 @@ def _evaluator(fn_obj, call, p, nrm, kernel, degree, fit_solver, fixed, lo, hi):
         f = call(y, False)
         return jnp.where(jnp.isnan(f), jnp.inf, f)
 
-    vg = jax.jit(lambda y: (value(y), jax.jacfwd(value)(y)))
+    def value_and_grad(y):
+        f, lin = jax.linearize(value, y)
+        return f, jax.jacfwd(lin)(y)
 
-    def evaluate(y):
+    vg = jax.jit(value_and_grad)
+
+    def evaluate(y, gradient=True):
         f, g = vg(y)
         return f, {k: jnp.where(jnp.isfinite(f), v, 0.0) for k, v in g.items()}
 
@@ -446,7 +450,8 @@ def tune(
         for steps in range(1, int(max_steps) + 1):
             try:
                 if quasi_newton:
-                    f_eval, g_eval = evaluate(state.y_eval)
+                    # the last step's gradient would only feed a step that is never taken
+                    f_eval, g_eval = evaluate(state.y_eval, gradient=steps < int(max_steps))
                     if steps > 1 and np.isfinite(float(f_eval)) and float(f_eval) < best_f:
                         # the best point evaluated, accepted by the line search or not
                         best_y, best_f = state.y_eval, float(f_eval)

@@ -287,18 +287,23 @@ def _held_out_parts(th, data: HeldOutData, kernel: str, shift=None, scale=None):
 
 
 @functools.partial(jax.jit, static_argnames=("kernel", "degree"))
-def _held_out_solve(y, lo, hi, base, data, *, kernel, degree):
-    from ._fit import RESIDUAL_TOL
+def _held_out_system(y, lo, hi, base, data, *, kernel, degree):
     from ._system import saddle_matrix
 
     xn, h, kn, sm, shift, scale = _held_out_parts(_theta(y, lo, hi, base), data, kernel)
     b = saddle_matrix(kn, xn, degree, sm)
-    rhs = jnp.concatenate([h, jnp.zeros(b.shape[0] - h.shape[0])])
+    return b, jnp.concatenate([h, jnp.zeros(b.shape[0] - h.shape[0])]), shift, scale
+
+
+# Compiled apart from the kernel's matrix: shared by every kernel fitted to the same samples.
+@jax.jit
+def _lu_solve_checked(b, rhs):
+    from ._fit import RESIDUAL_TOL
+
     lu = jax.scipy.linalg.lu_factor(b)
     z = jax.scipy.linalg.lu_solve(lu, rhs)
-    residual = jnp.max(jnp.abs(b @ z - rhs)) / jnp.maximum(jnp.max(jnp.abs(h)), 1e-300)
-    ok = jnp.all(jnp.isfinite(z)) & (residual <= RESIDUAL_TOL)
-    return lu, z, residual, ok, shift, scale
+    residual = jnp.max(jnp.abs(b @ z - rhs)) / jnp.maximum(jnp.max(jnp.abs(rhs)), 1e-300)
+    return lu, z, jnp.all(jnp.isfinite(z)) & (residual <= RESIDUAL_TOL)
 
 
 def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
@@ -323,6 +328,11 @@ def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
     if data.probe_q.shape[0]:
         fq = model._eval_normalised((data.probe_q - shift) / scale)
     return _error_terms(f, g / scale, data.test_n, data.length, fq, data.probe_side)
+
+
+@functools.partial(jax.jit, static_argnames=("kernel", "degree"))
+def _held_out_error_only(z, y, lo, hi, base, data, shift, scale, *, kernel, degree):
+    return _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree)
 
 
 @functools.partial(jax.jit, static_argnames=("kernel", "degree"))
@@ -407,7 +417,9 @@ def _held_out_coupling(z, lam, y, lo, hi, base, data, shift, scale, *, kernel, d
     return d_rest - d_kernel
 
 
-def held_out_value_and_grad(y, lo, hi, base, data: HeldOutData, *, kernel: str, degree: int = 1):
+def held_out_value_and_grad(
+    y, lo, hi, base, data: HeldOutData, *, kernel: str, degree: int = 1, gradient: bool = True
+):
     """`held_out_error` (with `solver="lu"`) and its gradient with respect to log-parameters,
     from a few compiled functions cached across calls (same kernel, degree and shapes).
 
@@ -417,6 +429,7 @@ def held_out_value_and_grad(y, lo, hi, base, data: HeldOutData, *, kernel: str, 
     - `lo`, `hi`: dicts of bounds on y (same keys). `base`: dict of all three parameters' values
       (those not in `y` are held there; the radius is ignored for kernels without one).
     - `data`: from `held_out_data`. `kernel` (a name), `degree`: as for `jaxrbf.fit`.
+    - `gradient`: False skips the gradient (then it is zero): the value alone costs one fit.
 
     **Returns:** (value, gradient dict like `y`, ok), JAX arrays: inf and a zero gradient where
     the fit fails.
@@ -428,7 +441,12 @@ def held_out_value_and_grad(y, lo, hi, base, data: HeldOutData, *, kernel: str, 
     against forward mode through `held_out_error`)."""
     y = {k: jnp.asarray(v, dtype=float) for k, v in y.items()}
     args = (lo, hi, base, data)
-    lu, z, _, ok, shift, scale = _held_out_solve(y, *args, kernel=kernel, degree=degree)
+    b, rhs, shift, scale = _held_out_system(y, *args, kernel=kernel, degree=degree)
+    lu, z, ok = _lu_solve_checked(b, rhs)
+    del b
+    if not gradient:
+        e = _held_out_error_only(z, y, *args, shift, scale, kernel=kernel, degree=degree)
+        return jnp.where(ok, e, jnp.inf), {k: jnp.zeros_like(v) for k, v in y.items()}, ok
     e, lam = _held_out_error_and_adjoint(
         z, lu, y, *args, shift, scale, kernel=kernel, degree=degree
     )

@@ -349,8 +349,10 @@ def check_solution(residual: float, finite: bool, solver: str, steps: int, ok: b
 
 #: A partition-of-unity fit interpolates every constraint its patches hold (to ~1e-11); a patch
 #: that had to be capped (`jaxrbf._partition.MAX_POINTS`) approximates a few. Beyond this the
-#: fit is an error.
-PARTITION_RESIDUAL_TOL = 1e-3
+#: fit is an error. Measured: a scan of the fandisk (20,000 points, outliers removed) has one
+#: constraint of 60,000 at 6.7e-3 (every other at 1e-14), harmless; badly conditioned local
+#: systems give 0.1 and more.
+PARTITION_RESIDUAL_TOL = 1e-2
 
 
 def _fit_partition(x, h, kern, degree, smoothing, shift, scale, seed, verbose):

@@ -202,21 +202,27 @@ def constraints_from(
     - `remove_outliers`: drop statistical outliers of a point cloud first
       (`jaxrbf.remove_outliers` with its defaults).
     """
-    frac = _offset_fraction(offset)
-    p, n, diag = surface_from(
+    c = _sampled(
         source,
         normals,
+        _offset_fraction(offset),
         points=points,
         sampling=sampling,
         seed=seed,
         subsample=subsample,
         remove_outliers=remove_outliers,
         verbose=verbose,
-    )
-    c = Constraints.from_points(p, n, frac * diag)
+    )[3]
     if verbose:
         log(c.report())
     return c
+
+
+def _sampled(source, normals, frac, **options):
+    """`surface_from(source, normals, **options)` and the constraints at offset `frac` of the
+    diagonal: `(points, normals, diagonal, constraints)`."""
+    p, n, diag = surface_from(source, normals, **options)
+    return p, n, diag, Constraints.from_points(p, n, frac * diag)
 
 
 def fit_surface(
@@ -261,9 +267,10 @@ def fit_surface(
             f"give `smoothing` ({smoothing!r}) or `denoise` (which chooses it), not both"
         )
     frac = _offset_fraction(offset)
-    p, n, diag = surface_from(
+    p, n, diag, c = _sampled(
         source,
         normals,
+        frac,
         points=points,
         sampling=sampling,
         seed=seed,
@@ -271,7 +278,6 @@ def fit_surface(
         remove_outliers=remove_outliers,
         verbose=verbose,
     )
-    c = Constraints.from_points(p, n, frac * diag)
     dim = c.points.shape[1]
     surface = np.asarray(c.points[: c.n_surface])
     if kernel is None:

@@ -102,3 +102,17 @@ def test_raw_scan_end_to_end(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--tune and --denoise" in err
     assert not (tmp_path / "x.ply").exists()
+
+
+def test_tune_estimates_normals_of_a_bare_cloud(tmp_path, capsys):
+    p, _ = ellipsoid_cloud(600, 0.0)
+    cloud = tmp_path / "bare.ply"
+    jaxrbf.io.write_points(cloud, p)
+    out = tmp_path / "tuned.npz"
+    code = main(["tune", str(cloud), "-o", str(out), "--points", "400", "--max-steps", "1"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "no normals given, estimating them" in captured.err and "objective" in captured.out
+    model = jaxrbf.load(out)
+    inside, outside = np.asarray(model(np.array([[0.0, 0, 0], [2.0, 0, 0]])))
+    assert inside < 0 < outside

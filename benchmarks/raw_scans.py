@@ -12,16 +12,18 @@ Both methods get the same points and nothing else:
 - `jaxrbf`: `remove_outliers` (statistical), `estimate_normals` (PCA + minimum spanning tree +
   outward vote), `fit_surface(points, normals, denoise=True)` (the smoothing chosen by the
   held-out error on crops; the partition-of-unity method at this size), then `mesh_closed` at
-  `--resolution` (default 128): exactly what `jaxrbf reconstruct scan.ply --remove-outliers
-  --denoise` runs.
+  `--resolution` (default 192): what `jaxrbf reconstruct scan.ply --remove-outliers --denoise
+  --resolution 192` runs. jaxrbf's own default grid, 128, is coarser than Poisson's octree at
+  depth 8 or 9 (256 or 512 cells a side), and on clean input marching cubes' interpolation then
+  shows: spot at noise 0 measured 0.1076% Chamfer at 128, 0.1047% at 192, 0.1046% at 256.
 - `open3d`: `remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)`,
   `estimate_normals(KDTreeSearchParamKNN(30))`, `orient_normals_consistent_tangent_plane(30)`,
   then `create_from_point_cloud_poisson` at depth 8 and 9 (no density trimming) on those normals.
 
 Figures, per input and method:
-- normals: the fraction of estimated normals pointing the wrong way (dot with the true normal of
-  the sample they belong to < 0), over the surface samples each method kept (outliers have no
-  true normal); how many of the outliers and of the surface samples its outlier removal dropped;
+- normals: the fraction of the input's surface samples whose estimated normal points the wrong
+  way (dot with the true normal of the sample < 0; outliers have no true normal, and a sample a
+  method dropped is not counted wrong, so both share one denominator); how many of the outliers and of the surface samples its outlier removal dropped;
 - Chamfer-L1 (% of the diagonal) and normal consistency of the mesh against the clean mesh
   (`jaxrbf.metrics.evaluate`, `--samples` samples, the same seed for every method);
 - whether the mesh is watertight (`jaxrbf.is_watertight`: every edge shared by exactly two
@@ -93,11 +95,13 @@ def _kept(points, cleaned):
     return idx
 
 
-def _orientation(est, true):
-    """Fraction of normals pointing the wrong way (over rows with a true normal)."""
+def _orientation(est, true, n_surface):
+    """Fraction of the input's `n_surface` surface samples whose estimated normal points the wrong
+    way (rows of `true` without a true normal are outliers; samples a method dropped count as
+    right, so that both methods share one denominator)."""
     ok = np.all(np.isfinite(true), axis=1)
     dot = np.einsum("ij,ij->i", est[ok], true[ok])
-    return float(np.mean(dot < 0))
+    return float(np.sum(dot < 0)) / n_surface
 
 
 def run_jaxrbf(pts, true, is_out, resolution):
@@ -115,7 +119,7 @@ def run_jaxrbf(pts, true, is_out, resolution):
     return dict(
         mesh=mesh,
         seconds=seconds,
-        wrong=_orientation(nrm, true[idx]),
+        wrong=_orientation(nrm, true[idx], int(np.sum(~is_out))),
         unsure=int(nrep.unsure),
         outliers_dropped=int(np.sum(is_out) - np.sum(is_out[idx])),
         inliers_dropped=int(np.sum(~is_out) - np.sum(~is_out[idx])),
@@ -136,7 +140,7 @@ def run_open3d(pts, true, is_out, depths):
     nrm = np.asarray(pc.normals)
     t_normals = time.perf_counter() - t0
     out = dict(
-        wrong=_orientation(nrm, true[idx]),
+        wrong=_orientation(nrm, true[idx], int(np.sum(~is_out))),
         outliers_dropped=int(np.sum(is_out) - np.sum(is_out[idx])),
         inliers_dropped=int(np.sum(~is_out) - np.sum(~is_out[idx])),
         meshes={},
@@ -172,7 +176,7 @@ def parse_args(argv=None):
     p.add_argument(
         "--outliers", type=float, default=0.01, help="outliers, fraction of --points (default 0.01)"
     )
-    p.add_argument("--resolution", type=int, default=128, help="jaxrbf's grid (default 128)")
+    p.add_argument("--resolution", type=int, default=192, help="jaxrbf's grid (default 192)")
     p.add_argument("--depths", type=int, nargs="+", default=[8, 9], help="Poisson depths")
     p.add_argument("--samples", type=int, default=200_000, help="metric samples (default 200k)")
     p.add_argument("--seed", type=int, default=0)

@@ -3,12 +3,18 @@
 The paper leaves the choice of the basis function's radius to future work; here it is a
 minimisation of an objective from `jaxrbf.objectives` (by default the held-out error) over the
 logarithms of the parameters (so they stay positive, and steps are relative), with an optimistix
-minimiser (BFGS by default) or least-squares solver (Levenberg-Marquardt, Gauss-Newton), whose
-gradients come from `jax.grad` through the whole fit (`lineax.linear_solve`).
+minimiser (BFGS by default) or least-squares solver (Levenberg-Marquardt, Gauss-Newton).
 
-The optimiser is stepped from Python (optimistix's `init` / `step` / `terminate`, each step
-jit-compiled once), so that progress can be shown and the path recorded; the result is the best
-point it evaluated, never worse than the start.
+The optimiser is stepped from Python (optimistix's `init` / `step` / `terminate`), so that
+progress can be shown and the path recorded; the result is the best point it evaluated, never
+worse than the start. Quasi-Newton minimisers (BFGS) ask for the objective only at one point per
+step (`state.y_eval`): `tune` evaluates it there itself, value and gradient, and hands both to a
+step compiled once per solver. For the held-out objective that evaluation is
+`objectives.held_out_value_and_grad`: one LU factorisation serves the fit and the adjoint solve,
+the kernel matrix's derivative is one fused pass per parameter, and its compiled pieces are
+cached across calls (the LU solve even across kernels on the same samples). Other objectives are
+differentiated in forward mode through `jaxrbf.fit` (`lineax.linear_solve`); other solvers step
+the objective themselves.
 """
 
 from __future__ import annotations

@@ -308,25 +308,24 @@ def _lu_solve_checked(b, rhs):
 
 def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
     """`surface_error` of the held-out fit with weights and coefficients `z` at log-parameters
-    `y` (values and gradients written out: a small program to compile and differentiate)."""
-    from ._model import RBFModel
+    `y`, with f and grad f at the held-out samples written out (as `RBFModel` computes them, but
+    with the closed-form `_dphi_dr2`): a small program to compile and differentiate."""
+    from ._model import pairwise_sq, poly_basis
 
     n = data.surface.shape[0] + data.out_p.shape[0] + data.in_p.shape[0]
     xn, _, kn, _, _, _ = _held_out_parts(_theta(y, lo, hi, base), data, kernel, shift, scale)
-    model = RBFModel(
-        centres=xn,
-        weights=z[:n],
-        coeffs=z[n:],
-        kernel=kn,
-        shift=shift,
-        scale=scale,
-        residual=jnp.zeros(()),
-        degree=degree,
-    )
-    f, g = model._value_grad_normalised((data.test_p - shift) / scale)
+    w, a = z[:n], z[n:]
+    tn = (data.test_p - shift) / scale
+    r2 = pairwise_sq(tn, xn)
+    f = kn.from_r2(r2) @ w + poly_basis(tn, degree) @ a
+    d = _dphi_dr2(kn, r2)
+    g = 2.0 * (tn * (d @ w)[:, None] - d @ (w[:, None] * xn))
+    if degree >= 1:
+        g = g + a[1:]
     fq = None
     if data.probe_q.shape[0]:
-        fq = model._eval_normalised((data.probe_q - shift) / scale)
+        qn = (data.probe_q - shift) / scale
+        fq = kn.from_r2(pairwise_sq(qn, xn)) @ w + poly_basis(qn, degree) @ a
     return _error_terms(f, g / scale, data.test_n, data.length, fq, data.probe_side)
 
 
@@ -360,10 +359,10 @@ def _dphi_dr2(kern, r2):
             return -0.5 / (rr * jnp.sqrt(u))
         if name == "inverse-multiquadric":
             return -0.5 / (rr * u * jnp.sqrt(u))
-        s = jnp.maximum(1.0 - jnp.sqrt(r2) / kern.radius, 0.0)
+        s = jnp.maximum(1.0 - jnp.sqrt(jnp.maximum(r2, 1e-300)) / kern.radius, 0.0)
         return -10.0 * s * s * s / rr
     if name == "cubic":
-        return 1.5 * jnp.sqrt(r2)
+        return 1.5 * jnp.sqrt(jnp.maximum(r2, 1e-300))
     if name == "thin-plate":
         return jnp.where(pos, 0.5 * (jnp.log(jnp.where(pos, r2, 1.0)) + 1.0), 0.0)
     if name == "linear":

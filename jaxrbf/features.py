@@ -435,7 +435,7 @@ def write_feature_polylines(path, polylines: list[np.ndarray]) -> None:
     """Write 3-D polylines atomically: `.csv` (header `polyline,x,y,z`, one row per point) or
     `.npz` (arrays `polyline_0`, `polyline_1`, ... of shape (j, 3)). (`jaxrbf.io.write_polylines`
     holds 2-D curves only.)"""
-    from .io import atomic_output
+    from .io import save_curves
 
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
@@ -444,16 +444,7 @@ def write_feature_polylines(path, polylines: list[np.ndarray]) -> None:
             f"cannot write polylines to '{p}' ('{ext}'); supported: {', '.join(POLYLINE_OUTPUTS_3D)}"
         )
     curves = [_check_points(c, f"polylines[{i}]") for i, c in enumerate(polylines)]
-    with atomic_output(p) as tmp:
-        if ext == ".csv":
-            with open(tmp, "w", encoding="ascii", newline="\n") as fh:
-                fh.write("polyline,x,y,z\n")
-                for i, c in enumerate(curves):
-                    ids = np.full((len(c), 1), i, dtype=np.float64)
-                    np.savetxt(fh, np.hstack([ids, c]), fmt=["%d"] + ["%.17g"] * 3, delimiter=",")
-        else:
-            with open(tmp, "wb") as fh:
-                np.savez(fh, **{f"polyline_{i}": c for i, c in enumerate(curves)})
+    save_curves(p, ext, curves, "polyline", 3)
 
 
 # --------------------------------------------------------------------------- command line

@@ -828,13 +828,21 @@ def write_polylines(path, polylines: list[np.ndarray]) -> None:
     if isinstance(polylines, np.ndarray) and polylines.ndim == 2:
         polylines = [polylines]
     curves = [as_points(c, f"polylines[{i}]", dims=(2,)) for i, c in enumerate(polylines)]
+    save_curves(path, ext, curves, "contour", 2)
+
+
+def save_curves(path, ext: str, curves: list[np.ndarray], label: str, dim: int) -> None:
+    """Write checked (k, `dim`) `curves` atomically to `path`: `.csv` with header `label,x,y[,z]`
+    (one row per vertex, `label` numbering the curves from 0) or `.npz` with arrays
+    `label_0`, `label_1`, .... Shared by `write_polylines` (2-D) and
+    `jaxrbf.features.write_feature_polylines` (3-D)."""
     with atomic_output(path) as tmp:
         if ext == ".csv":
             with open(tmp, "w", encoding="ascii", newline="\n") as fh:
-                fh.write("contour,x,y\n")
+                fh.write(",".join([label, *"xyz"[:dim]]) + "\n")
                 for i, c in enumerate(curves):
                     ids = np.full((len(c), 1), i, dtype=np.float64)
-                    np.savetxt(fh, np.hstack([ids, c]), fmt=["%d", "%.17g", "%.17g"], delimiter=",")
+                    np.savetxt(fh, np.hstack([ids, c]), fmt=["%d"] + ["%.17g"] * dim, delimiter=",")
         else:
             with open(tmp, "wb") as fh:
-                np.savez(fh, **{f"contour_{i}": c for i, c in enumerate(curves)})
+                np.savez(fh, **{f"{label}_{i}": c for i, c in enumerate(curves)})

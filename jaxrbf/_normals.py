@@ -139,18 +139,23 @@ def _outward(p: np.ndarray, n: np.ndarray) -> bool:
     return bool(w.sum() >= 0)
 
 
-def _vote(normals, rows, cols, same_sheet) -> tuple[np.ndarray, int]:
-    """Flip the normals that most of their graph neighbours on the same sheet disagree with.
+def _both_ways(rows, cols, keep) -> tuple[np.ndarray, np.ndarray]:
+    """The edges `rows[keep] -> cols[keep]` in both directions (for per-point sums)."""
+    r, c = rows[keep], cols[keep]
+    return np.concatenate([r, c]), np.concatenate([c, r])
+
+
+def _vote(normals, r, c) -> tuple[np.ndarray, int]:
+    """Flip the normals that most of their neighbours on the same sheet disagree with.
 
     One wrong turn in the spanning tree flips a whole branch; on noisy scans most branches that go
     wrong are a single leaf (a point whose noisy neighbourhood tilted its normal, or whose edge to
-    its parent looked like a gap between two sheets). Each round, a point whose neighbours (edges
-    of the Riemannian graph, weighted by |n_i . n_j|, without the edges that run along the normals:
-    those may cross to the other face of a thin part) disagree with it by a weighted majority of
-    `VOTE_MAJORITY` is flipped. Returns the normals and how many it flipped in all."""
+    its parent looked like a gap between two sheets). Each round, a point whose neighbours (the
+    directed edges `r -> c`, both ways, weighted by |n_i . n_j|; the caller leaves out those
+    whose offset runs along the normals: they may lie on the other face of a thin part) disagree
+    with it by a weighted majority of `VOTE_MAJORITY` is flipped. Returns the normals and how
+    many it flipped in all."""
     n_pts = len(normals)
-    r, c = rows[same_sheet], cols[same_sheet]
-    r, c = np.concatenate([r, c]), np.concatenate([c, r])  # both directions
     total = 0
     for _ in range(VOTE_ROUNDS):
         dot = np.einsum("ij,ij->i", normals[r], normals[c])
@@ -165,16 +170,15 @@ def _vote(normals, rows, cols, same_sheet) -> tuple[np.ndarray, int]:
     return normals, total
 
 
-def _fill_doubtful(normals, rows, cols, same_sheet) -> np.ndarray:
+def _fill_doubtful(normals, r, c) -> np.ndarray:
     """Replace the normals whose axis disagrees with most of their neighbours' (mean |n_i . n_j|
     below `DOUBT`) by the mean of those neighbours' normals, weighted by their own agreement.
 
     At a sharp edge or a corner the neighbourhood is no plane, and the PCA axis can come out
     across the surface instead of through it; its sign is then a coin toss. The neighbours'
-    oriented normals average to the bisector of the faces that meet there, which points out."""
+    oriented normals average to the bisector of the faces that meet there, which points out.
+    Edges `r -> c` as for `_vote`."""
     n_pts = len(normals)
-    r, c = rows[same_sheet], cols[same_sheet]
-    r, c = np.concatenate([r, c]), np.concatenate([c, r])
     agree = np.abs(np.einsum("ij,ij->i", normals[r], normals[c]))
     count = np.bincount(r, minlength=n_pts)
     trust = np.bincount(r, weights=agree, minlength=n_pts) / np.maximum(count, 1)
@@ -299,8 +303,9 @@ def estimate_normals(points, k: int | None = None, verbose: bool = False):
         np.abs(np.einsum("ij,ij->i", ve, normals[vr])),
         np.abs(np.einsum("ij,ij->i", ve, normals[vc])),
     )
-    normals, _ = _vote(normals, vr, vc, along <= CROSS)
-    normals = _fill_doubtful(normals, vr, vc, along <= CROSS)
+    r, c = _both_ways(vr, vc, along <= CROSS)
+    normals, _ = _vote(normals, r, c)
+    normals = _fill_doubtful(normals, r, c)
     flipped = float(np.mean(np.einsum("ij,ij->i", normals, raw) < 0))
     report = NormalsReport(k=k, flipped=flipped, unsure=unsure, components=n_comp, n=len(p_all))
     if verbose:

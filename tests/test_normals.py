@@ -163,22 +163,23 @@ def _graph(p, k=12):
 
 
 def test_vote_flips_isolated_wrong_normals_only():
-    from jaxrbf._normals import _vote
+    from jaxrbf._normals import _both_ways, _vote
 
     p, true = sphere(1500)
     bad = np.random.default_rng(0).choice(len(p), 30, replace=False)
     n = true.copy()
     n[bad] *= -1
     rows, cols = _graph(p)
-    fixed, count = _vote(n, rows, cols, np.ones(len(rows), dtype=bool))
+    rows, cols = _both_ways(rows, cols, np.ones(len(rows), dtype=bool))
+    fixed, count = _vote(n, rows, cols)
     assert count == 30 and np.all(np.einsum("ij,ij->i", fixed, true) > 0)
     # Edges marked as crossing to another sheet do not vote: nothing changes without any.
-    same, none = _vote(n, rows, cols, np.zeros(len(rows), dtype=bool))
+    same, none = _vote(n, *_both_ways(rows, cols, np.zeros(len(rows), dtype=bool)))
     assert none == 0 and np.array_equal(same, n)
 
 
 def test_doubtful_normals_at_an_edge_are_refilled_from_their_neighbours():
-    from jaxrbf._normals import _fill_doubtful
+    from jaxrbf._normals import _both_ways, _fill_doubtful
 
     p, true = thin_box(3000, size=(1.0, 1.0, 1.0))
     n = true.copy()
@@ -186,7 +187,7 @@ def test_doubtful_normals_at_an_edge_are_refilled_from_their_neighbours():
     near = np.flatnonzero((p[:, 0] > 0.45) & (p[:, 1] > 0.45) & (np.abs(p[:, 2]) < 0.3))[:10]
     n[near] = [0.0, 0.0, 1.0]
     rows, cols = _graph(p)
-    out = _fill_doubtful(n, rows, cols, np.ones(len(rows), dtype=bool))
+    out = _fill_doubtful(n, *_both_ways(rows, cols, np.ones(len(rows), dtype=bool)))
     # Now through the surface: out along the true normal, no longer along the edge.
     dots = np.einsum("ij,ij->i", out[near], true[near])  # the planted ones had 0
     assert np.all(dots > 0.2) and dots.mean() > 0.6, dots

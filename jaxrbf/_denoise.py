@@ -20,7 +20,7 @@ keeps it. Host loop over dense float64 fits of `CROP_POINTS` points each.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -53,7 +53,6 @@ class SmoothingReport:
     crops: int
     crop_points: int
     seconds: float
-    extra: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         best = int(np.argmin(self.objective))

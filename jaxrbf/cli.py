@@ -82,7 +82,8 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         "--remove-outliers",
         action="store_true",
         help="point clouds: drop statistical outliers (mean distance to 16 neighbours more "
-        "than 2 standard deviations above the mean) first",
+        "than 2 standard deviations above the mean, then points farther from their "
+        "neighbours' plane than 6x its thickness) first",
     )
     g.add_argument(
         "--denoise",

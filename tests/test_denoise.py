@@ -45,10 +45,46 @@ def test_noise_gets_smoothing_and_clean_input_does_not():
     assert np.isclose(r_noisy.smoothing, r_noisy.relative * unit, rtol=1e-6)
 
 
+def test_every_lambda_from_one_eigendecomposition_matches_the_held_out_error():
+    """The path of fits from one eigendecomposition gives, at each lambda, what the tuning
+    objective (`held_out_error`, one LU solve per fit) gives on the same split."""
+    from jaxrbf._denoise import _crop_errors
+    from jaxrbf.kernels import make_kernel
+
+    p, n = ellipsoid_cloud(400, 0.004, seed=4)
+    inner = np.arange(0, 400, 2)
+    lams = np.array([0.0, 1e-5, 1e-3]) * DIAG**3
+    per_point = _crop_errors(p, n, inner, make_kernel("cubic"), 0.02, 1, lams, seed=0)
+    test = np.sort(np.random.default_rng(0).choice(inner, len(inner) // 3, replace=False))
+    assert per_point.shape == (len(test), 3)
+    for i, lam in enumerate(lams):
+        ref = float(
+            jaxrbf.objectives.held_out_error(
+                p, n, kernel="cubic", offset=0.02, smoothing=lam, test=test
+            )
+        )
+        assert np.isclose(per_point[:, i].mean(), ref, rtol=1e-5), (i, per_point[:, i].mean(), ref)
+
+
+def test_choice_is_the_largest_lambda_within_one_standard_error():
+    noisy, true = ellipsoid_cloud(1500, 0.008, seed=5)
+    r = jaxrbf.choose_smoothing(noisy, true, offset=0.02, crops=2, crop_points=600)
+    obj = np.asarray(r.objective)
+    best = int(np.argmin(obj))
+    chosen = r.grid.index(r.relative)
+    assert chosen >= best and obj[chosen] <= obj[best] + r.standard_error
+    assert np.all(obj[best : chosen + 1] <= obj[best] + r.standard_error)
+    assert chosen == len(obj) - 1 or obj[chosen + 1] > obj[best] + r.standard_error
+    assert 0 < r.standard_error < obj[best]
+
+
 def test_denoised_fit_is_nearer_the_true_surface():
     noisy, true = ellipsoid_cloud(2000, 0.01, seed=1)
     plain = jaxrbf.fit_surface(noisy, true, offset=0.02)
-    smooth = jaxrbf.fit_surface(noisy, true, offset=0.02, denoise=True)
+    # (`fit_surface(..., denoise=True)` makes this choice with 1,000-point crops; the end-to-end
+    # test below goes through it.)
+    lam = jaxrbf.choose_smoothing(noisy, true, offset=0.02, crops=2, crop_points=600).smoothing
+    smooth = jaxrbf.fit_surface(noisy, true, offset=0.02, smoothing=lam)
     err, align = {}, {}
     for name, model in (("plain", plain), ("smooth", smooth)):
         mesh = jaxrbf.polygonize(model, resolution=48)

@@ -331,3 +331,13 @@ def surface_constraints(points, normals, offset, caps=None) -> Constraints:
 
 def log(msg: str) -> None:
     print(f"jaxrbf: {msg}", file=sys.stderr, flush=True)
+
+
+def progress_bar(total: int, desc: str, unit: str, show: bool | None):
+    """A tqdm bar on stderr, the one convention of the package's long loops: shown when `show`
+    is True, hidden when False, and by default (None) shown only when stderr is a terminal.
+    Callers with a `verbose` flag pass `True if verbose else None`."""
+    from tqdm import tqdm
+
+    disable = (not sys.stderr.isatty()) if show is None else not show
+    return tqdm(total=total, desc=desc, unit=unit, disable=disable, file=sys.stderr, leave=False)

@@ -34,7 +34,6 @@ each batch is sharded over them (see `jaxrbf._sharding`).
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import NamedTuple
 
@@ -45,7 +44,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float, Int
 
-from ._constraints import log
+from ._constraints import log, progress_bar
 from ._errors import InputError, SolveError
 from ._model import AbstractModel, _traced, kernel_block, poly_basis
 from ._schwarz import _kd_leaves
@@ -385,19 +384,6 @@ def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
     return jax.vmap(one)(xs, hs, mask, origin, radius)
 
 
-def _progress(total: int, desc: str, verbose: bool):
-    from tqdm import tqdm
-
-    return tqdm(
-        total=total,
-        desc=desc,
-        unit="patch",
-        disable=not (verbose or sys.stderr.isatty()),
-        file=sys.stderr,
-        leave=False,
-    )
-
-
 def fit_patches(
     kernel, xn, h, degree, smoothing, patches: Patches, *, verbose=False, desc="patches"
 ):
@@ -415,7 +401,7 @@ def fit_patches(
     worst = 0.0
     # one batch size for every level (a level with fewer patches is padded): fewer compilations
     batch = pad_to_devices(BATCH)
-    with _progress(n_p, desc, verbose) as bar:
+    with progress_bar(n_p, desc, "patch", True if verbose else None) as bar:
         for start in range(0, n_p, batch):
             sel = np.arange(start, start + batch)
             real = sel < n_p

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import sys
 import time
 from collections.abc import Callable
 
@@ -30,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._constraints import DEFAULT_OFFSET, log
+from ._constraints import DEFAULT_OFFSET, log, progress_bar
 from ._errors import InputError
 from .kernels import AbstractKernel, kernel_class
 
@@ -153,19 +152,6 @@ def _check_params(params, kernel, start: dict) -> tuple[str, ...]:
                 f"got {value!r}{hint}"
             )
     return params
-
-
-def _progress(total: int, verbose: bool, desc: str):
-    from tqdm import tqdm
-
-    return tqdm(
-        total=total,
-        desc=desc,
-        unit="step",
-        disable=not (verbose and sys.stderr.isatty()),
-        file=sys.stderr,
-        leave=False,
-    )
 
 
 def _validate_samples(points, normals):
@@ -452,7 +438,7 @@ def tune(
     best_y, best_f, f0 = y0, np.inf, np.nan
     y = y0
     converged, message, steps = False, "", 0
-    with _progress(int(max_steps), verbose, f"tune {kname}") as bar:
+    with progress_bar(int(max_steps), f"tune {kname}", "step", True if verbose else None) as bar:
         for steps in range(1, int(max_steps) + 1):
             try:
                 if quasi_newton:
@@ -564,8 +550,6 @@ def grid_search(
 
     **Returns:** `(best, table, seconds)`: the best parameters (`offset`, `radius`, `objective`),
     the objective on the grid (len(offsets), len(radii) or 1), and the time taken."""
-    from tqdm import tqdm
-
     t0 = time.perf_counter()
     p, nrm = _validate_samples(points, normals)
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
@@ -596,14 +580,7 @@ def grid_search(
 
     rs = radii if radii is not None else np.array([np.nan])
     table = np.full((len(offsets), len(rs)), np.inf)
-    bar = tqdm(
-        total=table.size,
-        desc=f"grid {cls.name}",
-        disable=not (verbose and sys.stderr.isatty()),
-        file=sys.stderr,
-        leave=False,
-    )
-    with bar:
+    with progress_bar(table.size, f"grid {cls.name}", "fit", True if verbose else None) as bar:
         for i, d in enumerate(offsets):
             for j, r in enumerate(rs):
                 table[i, j] = float(evaluate(d, r))

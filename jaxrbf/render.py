@@ -36,7 +36,6 @@ Works on any implicit: an `RBFModel`, a `PartitionModel`, the primitives and CSG
 from __future__ import annotations
 
 import os
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -46,6 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._constraints import progress_bar
 from ._errors import InputError
 from ._project import value_and_gradient as _value_grad
 
@@ -659,13 +659,6 @@ def save_png(path, image) -> None:
 # ------------------------------------------------------------------------------------- render
 
 
-def _progress(total: int, desc: str, progress: bool | None):
-    from tqdm import tqdm
-
-    disable = (not sys.stderr.isatty()) if progress is None else not progress
-    return tqdm(total=total, desc=desc, unit="chunk", disable=disable, file=sys.stderr, leave=False)
-
-
 def _box_entry(o, d, lo, hi):
     """Slab test on the host: (t_near, t_far, hit) per ray against the box [lo, hi]."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -809,10 +802,10 @@ def render(
 
     cells = int(grid)
     n_grid = int(np.prod(np.ceil((hi - lo) / ((hi - lo).max() / cells)) + 1))
-    with _progress(-(-n_grid // _CHUNK), "render: grid", progress) as bar:
+    with progress_bar(-(-n_grid // _CHUNK), "render: grid", "chunk", progress) as bar:
         accel, band_cells = _build_grid(implicit, lo, hi, cells, float(band), bar)
 
-    with _progress(0, "render: marching", progress) as bar:
+    with progress_bar(0, "render: marching", "chunk", progress) as bar:
         status, ta, fa, tb, fb, unfinished, evaluations = _trace(
             implicit,
             accel,
@@ -877,7 +870,7 @@ def render(
             so = p[idx] + normals[idx] * (1e-3 * diag)
             sd = np.broadcast_to(key, so.shape).copy()
             s0, sfar, _ = _box_entry(so, sd, lo, hi)
-            with _progress(0, "render: shadows", progress) as bar:
+            with progress_bar(0, "render: shadows", "chunk", progress) as bar:
                 st, *_ = _trace(
                     implicit, accel, so, sd, s0, sfar, footprint, float(safety), int(max_steps), bar
                 )

@@ -213,3 +213,19 @@ def test_method_option_partition_fit_mesh(tmp_path, capsys, monkeypatch):
     with pytest.raises(SystemExit):
         run(capsys, "fit", cloud, "-o", model, "--method", "fast")
     assert "invalid choice: 'fast'" in capsys.readouterr().err
+
+
+def test_progress_bars_follow_one_convention(capsys):
+    """Bars go to stderr: shown when asked (True), hidden when told (False), and by default
+    only on a terminal (pytest's captured stderr is not one)."""
+    from jaxrbf._constraints import progress_bar
+
+    with progress_bar(3, "quiet by default", "step", None) as bar:
+        assert bar.disable
+    with progress_bar(3, "hidden", "step", False) as bar:
+        assert bar.disable
+    with progress_bar(3, "asked for", "step", True) as bar:
+        bar.update(3)
+    captured = capsys.readouterr()
+    assert "asked for" in captured.err and "hidden" not in captured.err
+    assert captured.out == ""

@@ -55,12 +55,11 @@ def main() -> int:
 
     import jaxrbf
     from jaxrbf import _tune
-    from jaxrbf._constraints import offset_caps, surface_constraints
     from jaxrbf._prepare import diagonal
-    from jaxrbf.objectives import OFFSET_LIMIT, held_out_error
+    from jaxrbf.objectives import capped_constraints, held_out_error
 
     def final_fit(p, n, kernel, offset, radius):
-        c = surface_constraints(p, n, offset, offset_caps(p, n, OFFSET_LIMIT * diagonal(p)))
+        c = capped_constraints(p, n, offset)
         return jaxrbf.fit(c, kernel=kernel, radius=radius, solver="lu", method="dense")
 
     def score(model, ref):

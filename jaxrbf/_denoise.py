@@ -161,7 +161,7 @@ def choose_smoothing(
             "choosing the smoothing: every candidate fit failed on the crops (singular systems); "
             "check the points for duplicates, or give `smoothing` by hand"
         )
-    best = int(np.nanargmin(np.where(np.isfinite(scores), scores, np.nan)))
+    best = int(np.argmin(scores))  # failed candidates score inf, never NaN
     se = float(np.std(per_point[:, best], ddof=1) / np.sqrt(len(per_point)))
     chosen = best
     while chosen + 1 < len(grid) and scores[chosen + 1] <= scores[best] + se:
@@ -186,17 +186,15 @@ def _crop_errors(pc, nc, inner, kern, offset, degree, lams, seed):
     """Held-out errors (points, candidates) of one crop: fit on all but a third of its interior
     points (`inner`), measure `surface_error`'s two terms at those, for every lambda in `lams`
     (the points' units) at once; inf rows where a candidate failed."""
-    from ._constraints import offset_caps, surface_constraints
     from ._difffit import unit_box
-    from ._prepare import diagonal
-    from .objectives import OFFSET_LIMIT, point_spacing
+    from .objectives import capped_constraints, point_spacing
 
     test = np.sort(
         np.random.default_rng(seed).choice(inner, max(1, len(inner) // 3), replace=False)
     )
     train = np.setdiff1d(np.arange(len(pc)), test)
     pt, nt = pc[train], nc[train]
-    c = surface_constraints(pt, nt, offset, offset_caps(pt, nt, OFFSET_LIMIT * diagonal(pt)))
+    c = capped_constraints(pt, nt, offset)
     x, h = np.asarray(c.points), np.asarray(c.values)
     shift, scale = (np.asarray(v) for v in unit_box(jnp.asarray(x)))
     n = len(x)
@@ -224,8 +222,9 @@ def _held_out_path(kern, xn, h, mask, lams, tp, tn, length, degree: int):
     """(test points, lambdas) held-out errors |f| / |grad f| / length + max(0, 1 - cos(grad f, n))
     of the fits of constraints `xn` (padded; `mask` marks the real ones) with values `h`, for
     every smoothing in `lams`, from one eigendecomposition (see the module's docstring)."""
-    from ._model import kernel_block, poly_basis
+    from ._model import forward_value_and_gradient, kernel_block, poly_basis
     from ._solve import _null_space_matrix, _projector
+    from .objectives import pointwise_errors
 
     real = mask[:, None] & mask[None, :]
     a = jnp.where(real, kernel_block(kern, xn, xn), 0.0)
@@ -253,15 +252,8 @@ def _held_out_path(kern, xn, h, mask, lams, tp, tn, length, degree: int):
     def values(x):
         return kernel_block(kern, x, xn) @ w + poly_basis(x, degree) @ coef  # (t, lambdas)
 
-    f = values(tp)
-    grads = [
-        jax.jvp(values, (tp,), (jnp.zeros_like(tp).at[:, j].set(1.0),))[1]
-        for j in range(tp.shape[1])
-    ]
-    g = jnp.stack(grads, axis=-1)  # (t, lambdas, d)
-    gn = jnp.sqrt(jnp.sum(g * g, axis=-1) + 1e-300)
-    nrm = tn / jnp.linalg.norm(tn, axis=1, keepdims=True)
-    dist = jnp.abs(f) / gn / length
-    mis = jnp.maximum(1.0 - jnp.sum(g * nrm[:, None, :], axis=-1) / gn, 0.0)
+    t, d = tp.shape
+    f, g = forward_value_and_gradient(values, tp)  # flattened over (t, lambdas)
+    dist, mis = pointwise_errors(f.reshape(t, -1), g.reshape(t, -1, d), tn[:, None, :], length)
     err = dist + mis
     return jnp.where(ok[None, :] & jnp.all(jnp.isfinite(err), axis=0)[None, :], err, jnp.inf)

@@ -316,10 +316,8 @@ def tune(
     """
     import optimistix as optx
 
-    from ._constraints import offset_caps, surface_constraints
     from ._fit import fit
-    from ._prepare import diagonal
-    from .objectives import OFFSET_LIMIT
+    from .objectives import capped_constraints
 
     t0 = time.perf_counter()
     p, nrm = _validate_samples(points, normals)
@@ -501,8 +499,7 @@ def tune(
         best_y, best_f = y0, f0
         message += "; no better point than the start was found, so the start is returned"
     final = dict(fixed, **{k: float(v) for k, v in values(best_y).items()})
-    caps = offset_caps(p, nrm, OFFSET_LIMIT * diagonal(p))
-    c = surface_constraints(p, nrm, final["offset"], caps)
+    c = capped_constraints(p, nrm, final["offset"])
     model = fit(
         c,
         kernel=kname,

@@ -111,16 +111,24 @@ def surface_error(model, points, normals, length, *, probes=None, residuals: boo
     return _error_terms(model(p), model.gradient(p), normals, length, fq, side, residuals)
 
 
+def pointwise_errors(f, g, normals, length):
+    """The two terms of `surface_error` at each point, unaveraged: (|f| / |grad f| / `length`,
+    max(0, 1 - cos(grad f, n))), from values `f` (...), gradients `g` (..., d) and `normals`
+    broadcastable to `g` (the coordinate axis last)."""
+    nrm = jnp.asarray(normals, dtype=float)
+    nrm = nrm / jnp.linalg.norm(nrm, axis=-1, keepdims=True)
+    gn = jnp.sqrt(jnp.sum(g * g, axis=-1) + 1e-300)
+    dist = jnp.abs(f) / gn / length
+    mis = jnp.maximum(1.0 - jnp.sum(g * nrm, axis=-1) / gn, 0.0)
+    return dist, mis
+
+
 def _error_terms(f, g, normals, length, fq=None, side=None, residuals: bool = False):
     """`surface_error` from the values `f` and gradients `g` at the points (and `fq` at the
     probes, on their `side`)."""
-    nrm = jnp.asarray(normals, dtype=float)
-    nrm = nrm / jnp.linalg.norm(nrm, axis=1, keepdims=True)
-    gn = jnp.sqrt(jnp.sum(g * g, axis=1) + 1e-300)
-    dist = jnp.abs(f) / gn / length
-    mis = 1.0 - jnp.sum(g * nrm, axis=1) / gn
+    dist, mis = pointwise_errors(f, g, normals, length)
     n = f.shape[0]
-    terms = [dist / n, jnp.maximum(mis, 0.0) / n]
+    terms = [dist / n, mis / n]
     if fq is not None and fq.shape[0]:
         wrong = jax.nn.sigmoid(-side * fq / (0.5 * length))
         terms.append(SIGN_WEIGHT * wrong / fq.shape[0])
@@ -129,17 +137,26 @@ def _error_terms(f, g, normals, length, fq=None, side=None, residuals: bool = Fa
     return sum(jnp.sum(t) for t in terms)
 
 
-def _fit_surface_model(points, normals, *, kernel, offset, radius, smoothing, degree, solver):
-    """The dense, differentiable fit of surface samples; returns (model, ok)."""
+def capped_constraints(points, normals, offset):
+    """`surface_constraints` of surface samples at `offset` (may be traced), each off-surface
+    point's offset capped where the Carr test fails and at `OFFSET_LIMIT` of the diagonal
+    (`offset_caps`, host): the constraints every objective and tuned fit uses."""
     from ._constraints import offset_caps, surface_constraints
-    from ._difffit import solve_dense
-    from ._fit import RESIDUAL_TOL
     from ._prepare import diagonal
-    from .kernels import make_kernel
 
     p = np.asarray(points, dtype=float)
-    caps = offset_caps(p, normals, OFFSET_LIMIT * diagonal(p))
-    c = surface_constraints(p, normals, offset, caps)
+    return surface_constraints(
+        p, normals, offset, offset_caps(p, normals, OFFSET_LIMIT * diagonal(p))
+    )
+
+
+def _fit_surface_model(points, normals, *, kernel, offset, radius, smoothing, degree, solver):
+    """The dense, differentiable fit of surface samples; returns (model, ok)."""
+    from ._difffit import solve_dense
+    from ._fit import RESIDUAL_TOL
+    from .kernels import make_kernel
+
+    c = capped_constraints(points, normals, offset)
     kern = make_kernel(kernel, radius)
     model, residual, finite = solve_dense(c.points, c.values, kern, degree, smoothing, solver)
     return model, finite & (residual <= RESIDUAL_TOL)
@@ -526,19 +543,14 @@ def loocv_error(
     **Returns:** the root mean square of the relative errors (or, with `residuals=True`, the
     errors divided by sqrt(n)).
     """
-    from ._constraints import offset_caps, surface_constraints
     from ._difffit import unit_box
-    from ._prepare import diagonal
     from ._system import saddle_matrix
     from .kernels import make_kernel
 
     if normals is not None:
         if offset is None:
             raise InputError("`offset` is needed with `normals` (the surface form)")
-        p = np.asarray(points, dtype=float)
-        c = surface_constraints(
-            p, normals, offset, offset_caps(p, normals, OFFSET_LIMIT * diagonal(p))
-        )
+        c = capped_constraints(points, normals, offset)
         x, h, unit = c.points, c.values, jnp.asarray(offset, dtype=float)
     else:
         if values is None:

@@ -22,6 +22,7 @@ from . import kernels as kernels
 from . import metrics as metrics
 from . import objectives as objectives
 from . import plot as plot
+from ._background import surface_background as surface_background
 from ._clean import OutlierReport as OutlierReport
 from ._clean import boundary_loops as boundary_loops
 from ._clean import is_watertight as is_watertight

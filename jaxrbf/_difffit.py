@@ -70,13 +70,18 @@ def unit_box(x):
     return 0.5 * (lo + hi), jnp.max(hi - lo)
 
 
-def solve_dense(x, h, kern: AbstractKernel, degree: int, smoothing, solver: str = "lu"):
+def solve_dense(
+    x, h, kern: AbstractKernel, degree: int, smoothing, solver: str = "lu", background=None
+):
     """The dense fit as a pure JAX function: returns (RBFModel, residual, finite). No checks.
 
     `x` (n, d) constraint points and `h` (n,) values in the user's units; `kern` with its radius
-    in those units; `smoothing` lambda in those units."""
+    in those units; `smoothing` lambda in those units; `background` None or a model whose values
+    are subtracted from `h` (and added back by the model)."""
     from ._solve import solve_system
 
+    if background is not None:
+        h = h - background(x)
     shift, scale = unit_box(x)
     xn = (x - shift) / scale
     kn = kern.scaled(1.0 / scale)
@@ -92,6 +97,7 @@ def solve_dense(x, h, kern: AbstractKernel, degree: int, smoothing, solver: str 
         scale=scale,
         residual=sol.residual,
         degree=degree,
+        background=background,
     )
     return model, sol.residual, finite
 
@@ -112,7 +118,9 @@ def _checked(model, residual, finite, solver):
     return eqx.tree_at(lambda m: m.weights, model, eqx.error_if(model.weights, bad, msg))
 
 
-def fit_traced(points, values, *, kernel, degree, smoothing, solver, radius, method, seed):
+def fit_traced(
+    points, values, *, kernel, degree, smoothing, solver, radius, method, seed, background=None
+):
     """`jaxrbf.fit` when an input is traced; same arguments (see the module docstring)."""
     from ._fit import AUTO_DENSE_LIMIT, METHODS, _check_size, checked_kernel
 
@@ -133,6 +141,8 @@ def fit_traced(points, values, *, kernel, degree, smoothing, solver, radius, met
     if method == "auto":
         method = "dense" if (solver is not None or n + k <= AUTO_DENSE_LIMIT) else "partition"
     if method == "partition":
+        if background is not None:
+            raise InputError("`background` applies to method='dense'")
         if solver is not None:
             raise InputError(
                 "`solver` applies to method='dense' or 'global'; the partition method solves its "
@@ -147,7 +157,7 @@ def fit_traced(points, values, *, kernel, degree, smoothing, solver, radius, met
             "lineax.linear_solve)"
         )
     _check_size(n + k, solver)
-    model, residual, finite = solve_dense(x, h, kern, degree, smoothing, solver)
+    model, residual, finite = solve_dense(x, h, kern, degree, smoothing, solver, background)
     return _checked(model, residual, finite, solver)
 
 

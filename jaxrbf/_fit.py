@@ -116,6 +116,7 @@ def fit(
     method: str = "auto",
     tol: float | None = None,
     seed: int = 0,
+    background: AbstractModel | None = None,
     verbose: bool = False,
 ) -> AbstractModel:
     """Fit f(x) = sum_j w_j phi(|x - c_j|) + p(x) through `values` at `points` (eq. 5-6).
@@ -151,6 +152,11 @@ def fit(
       polyharmonic systems (default rtol 1e-8).
     - `tol`, `seed`: `global` only: the absolute residual to reach at every constraint (default
       1e-3 max|values|) and the seed of its initial subset.
+    - `background`: None, or a model g (e.g. `jaxrbf.surface_background(points, normals)`): the
+      RBF part is fitted to `values` - g(`points`) and the returned model is f = RBF part + g
+      (the dense method only). Surface fits with kernels that decay far from their centres
+      (Gaussian, inverse multiquadric, Wendland) want one, or their bare polynomial makes
+      spurious surface away from the data (see `jaxrbf._background`).
     - `verbose`: report the solve and its residual on stderr.
 
     **Returns:** an `RBFModel` (`dense`, `global`) or a `PartitionModel` (`partition`). Its
@@ -188,6 +194,7 @@ def fit(
             radius=radius,
             method=method,
             seed=seed,
+            background=background,
         )
     x, h = points_and_values(points, values)
     if method not in METHODS:
@@ -229,9 +236,11 @@ def fit(
                 f"all {n} points lie on one {'plane' if dim == 3 else 'hyperplane'}, so the degree-1 "
                 "polynomial is not determined; use degree=0 or add points off that plane"
             )
-    if method == "auto" and solver is not None:
-        method = "dense"  # a solver was asked for: it solves one global system
+    if method == "auto" and (solver is not None or background is not None):
+        method = "dense"  # a solver or a background was asked for: one global system
     method = choose_method(method, n + k, verbose)
+    if background is not None:
+        h = h - background_values(background, x, method)
     if method == "global":
         from ._greedy import greedy_fit
 
@@ -297,7 +306,30 @@ def fit(
         scale=jnp.asarray(scale),
         residual=jnp.asarray(residual),
         degree=degree,
+        background=background,
     )
+
+
+def background_values(background, x, method: str):
+    """g(`x`) of a `background` model for `fit`, after checking that it can be one."""
+    if not isinstance(background, AbstractModel):
+        raise InputError(
+            f"`background` must be a jaxrbf model (e.g. jaxrbf.surface_background(points, "
+            f"normals)) or None, got {type(background).__name__}"
+        )
+    if background.dim != x.shape[1]:
+        raise InputError(
+            f"`background` is a {background.dim}-D model but the points are {x.shape[1]}-D"
+        )
+    if method != "dense":
+        raise InputError(
+            f"`background` applies to method='dense'; method={method!r} has its own coarse "
+            "levels far from the data"
+        )
+    g = background(x)
+    if not bool(jnp.all(jnp.isfinite(g))):
+        raise InputError("`background` is not finite at every point")
+    return np.asarray(g)
 
 
 def checked_kernel(kernel, radius, degree: int, shape: tuple[int, int]):

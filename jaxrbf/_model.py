@@ -173,6 +173,10 @@ class RBFModel(AbstractModel):
     - `shift`, `scale`: the normalising transform.
     - `residual`: max-norm relative residual of the solve that produced the model.
     - `degree`: polynomial degree (-1, 0 or 1), static.
+    - `background`: None, or a model g added to f (`fit(..., background=g)` fits the values minus
+      g): f(x) = sum_j w_j phi(|x' - c_j|) + p(x') + g(x). Far from the centres a decaying kernel
+      leaves f = p + g, so a background with the right sign there keeps spurious pieces of
+      surface away (`jaxrbf.surface_background`).
     """
 
     centres: Float[Array, "m d"]
@@ -183,10 +187,19 @@ class RBFModel(AbstractModel):
     scale: Float[Array, ""]
     residual: Float[Array, ""]
     degree: int = eqx.field(static=True)
+    background: AbstractModel | None = None
+
+    def _background_normalised(self, xn):
+        """The background's points in its own frame, and d(its frame)/d(this frame)."""
+        bg = self.background
+        return bg.normalise(xn * self.scale + self.shift), self.scale / bg.scale
 
     def _eval_normalised(self, xn: Float[Array, "b d"]) -> Float[Array, " b"]:
         phi = kernel_block(self.kernel, xn, self.centres)
-        return phi @ self.weights + poly_basis(xn, self.degree) @ self.coeffs
+        f = phi @ self.weights + poly_basis(xn, self.degree) @ self.coeffs
+        if self.background is not None:
+            f = f + self.background._eval_normalised(self._background_normalised(xn)[0])
+        return f
 
     def _value_grad_normalised(self, xn):
         # grad f = 2 sum_j w_j phi'(r_j^2) (x - c_j) + grad p, with phi' the kernel's derivative
@@ -201,6 +214,10 @@ class RBFModel(AbstractModel):
         g = 2.0 * (a[:, :1] * xn - a[:, 1:])
         if self.degree >= 1:
             g = g + self.coeffs[1:]
+        if self.background is not None:
+            xb, ratio = self._background_normalised(xn)
+            fb, gb = self.background._value_grad_normalised(xb)
+            f, g = f + fb, g + gb * ratio
         return f, g
 
     def _block_rows(self) -> int:

@@ -14,7 +14,8 @@ from .io import atomic_output, read_npz
 from .kernels import KERNELS
 
 FORMAT = "jaxrbf-model"
-FORMAT_VERSION = 1
+#: 2 added an `rbf` model's background (`bg.*`); files without one are still written as 1.
+FORMAT_VERSION = 2
 
 
 def _kernel_arrays(kernel, prefix: str) -> dict[str, np.ndarray]:
@@ -25,8 +26,17 @@ def _kernel_arrays(kernel, prefix: str) -> dict[str, np.ndarray]:
 
 
 def _rbf_arrays(model: RBFModel, prefix: str = "") -> dict[str, np.ndarray]:
+    bg = {}
+    if model.background is not None:
+        if not isinstance(model.background, RBFModel) or model.background.background is not None:
+            raise InputError(
+                "save() stores a background that is a plain RBFModel (as "
+                f"jaxrbf.surface_background builds); got {type(model.background).__name__}"
+            )
+        bg = _rbf_arrays(model.background, prefix + "bg.")
     return dict(
         _kernel_arrays(model.kernel, prefix),
+        **bg,
         **{
             prefix + "degree": np.array(model.degree),
             prefix + "centres": np.asarray(model.centres),
@@ -72,7 +82,8 @@ def save(model: RBFModel | PartitionModel, path) -> None:
 
     The file holds `format`, `format_version`, `kind` (`rbf` or `partition`) and the jaxrbf
     version that wrote it. An `rbf` model adds `kernel`, `radius` (NaN for kernels without one),
-    `degree`, `centres`, `weights`, `coeffs`, `shift`, `scale` and `residual`. A `partition` model
+    `degree`, `centres`, `weights`, `coeffs`, `shift`, `scale` and `residual`, and its background
+    (if any) as another `rbf` model under `bg.` (format version 2). A `partition` model
     adds `shift`, `scale`, `residual`, `levels`, each level's patch arrays (`level{i}.patch_*`,
     `level{i}.kernel`, ...) and the coarsest global fit as an `rbf` model under `base.`.
     """
@@ -86,13 +97,14 @@ def save(model: RBFModel | PartitionModel, path) -> None:
     if not path.endswith(".npz"):
         raise InputError(f"a model is saved as .npz; got {path!r}")
     kind = "rbf" if isinstance(model, RBFModel) else "partition"
+    body = _rbf_arrays(model) if kind == "rbf" else _partition_arrays(model)
     arrays = dict(
         format=np.array(FORMAT),
-        format_version=np.array(FORMAT_VERSION),
+        format_version=np.array(FORMAT_VERSION if "bg.kernel" in body else 1),
         kind=np.array(kind),
         jaxrbf_version=np.array(__version__),
     )
-    arrays.update(_rbf_arrays(model) if kind == "rbf" else _partition_arrays(model))
+    arrays.update(body)
     with atomic_output(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
@@ -147,6 +159,11 @@ def _rbf_from(data, path, pre: str = "") -> RBFModel:
     _finite(data, path, [pre + k for k in ("centres", "weights", "coeffs", "shift", "scale")])
     if not float(data[pre + "scale"]) > 0:
         raise InputError(f"'{path}' has a non-positive 'scale'")
+    background = None
+    if pre + "bg.kernel" in data:
+        background = _rbf_from(data, path, pre + "bg.")
+        if background.dim != c.shape[1]:
+            raise InputError(f"'{path}' has a background of another dimension than its model")
     return RBFModel(
         centres=jnp.asarray(c, dtype=float),
         weights=jnp.asarray(w, dtype=float),
@@ -156,6 +173,7 @@ def _rbf_from(data, path, pre: str = "") -> RBFModel:
         scale=jnp.asarray(data[pre + "scale"], dtype=float),
         residual=jnp.asarray(data[pre + "residual"], dtype=float),
         degree=degree,
+        background=background,
     )
 
 

@@ -16,12 +16,12 @@ trend of the residual).
 
 Measured (2,000 samples, default offset and radius, mesh at resolution 128, Chamfer-L1 in % of
 the diagonal):
-- fandisk, Gaussian: the wrong-sign fraction fell to 0.05%, the Chamfer distance from 1.86% to
-  0.35% (at the grid's best parameters 0.28%);
-- the bunny: the background's quality matters. Built on 500 samples it is poor where the bunny is
-  thin (1.71% alone) and so is the fit over it (Gaussian 1.18%); on 1,000 samples (the default
-  here) the background alone is at 0.30% and the Gaussian over it at 0.28% (0.91% without a
-  background); Wendland at its support floor reaches 0.24% over it against 0.21% without.
+- Gaussian: spot 0.85% -> 0.18%, the bunny 0.91% -> 0.28%, the fandisk 1.86% -> 0.32% (there,
+  with a 500-sample background, the wrong-sign fraction fell from 13% to 0.05%);
+- Wendland with its radius at `support_floor` (which already covers the box): about even or
+  worse, spot 0.159% -> 0.160%, the bunny 0.21% -> 0.24%, the fandisk 0.228% -> 0.234%;
+- the background's own quality matters: on 500 samples it is poor where the bunny is thin (1.71%
+  alone; the Gaussian over it 1.18%); on 1,000 (the default here) 0.30% alone.
 
 So it is opt-in for now: the surface-level paths (`fit_surface`, `tune`, the objectives) do not
 add it. The background is built on the host from concrete samples and is a constant of the fit

@@ -36,9 +36,6 @@ from collections import OrderedDict
 import jax
 import numpy as np
 
-from ._errors import InputError
-from .kernels import AbstractKernel, kernel_class
-
 #: Surface samples of a background (all of them when there are fewer): 3,000 constraints, one
 #: dense solve of about a second. 500 were too few on the bunny (see above).
 BACKGROUND_SAMPLES = 1000
@@ -48,31 +45,17 @@ _CACHE: OrderedDict[str, object] = OrderedDict()
 _CACHE_SIZE = 8
 
 
-def decays(kernel) -> bool:
-    """Whether `kernel` (a name, class or instance) vanishes far from its centre (then a surface
-    fit with it wants a background)."""
-    if isinstance(kernel, AbstractKernel):
-        return type(kernel).decays
-    if isinstance(kernel, type):
-        return kernel.decays
-    return kernel_class(kernel).decays
-
-
 def surface_background(points, normals, *, seed: int = 0):
     """The background of a surface fit: a global polyharmonic `RBFModel` of a random subsample of
     `BACKGROUND_SAMPLES` of the surface samples `points` with their outward `normals`, with
-    off-surface points at two of the subsample's point spacings. Pass it as `jaxrbf.fit(..., background=...)`; see the module
-    docstring. Float64, LU; host (safe to call while JAX traces: it runs eagerly)."""
+    off-surface points at two of the subsample's point spacings. Pass it as
+    `jaxrbf.fit(..., background=...)`; see the module docstring. Float64, LU; host (safe to call
+    while JAX traces: it runs eagerly)."""
     from ._fit import fit
     from ._partition import coarse_constraints
+    from ._tune import _validate_samples
 
-    p = np.asarray(points, dtype=float)
-    nrm = np.asarray(normals, dtype=float)
-    if p.ndim != 2 or nrm.shape != p.shape or len(p) < p.shape[1] + 2:
-        raise InputError(
-            f"a background needs (n, d) surface samples and normals of the same shape with "
-            f"n > d + 1; got {p.shape} and {nrm.shape}"
-        )
+    p, nrm = _validate_samples(points, normals)
     key = hashlib.sha1(p.tobytes() + nrm.tobytes() + str((p.shape, seed)).encode()).hexdigest()
     if key in _CACHE:
         _CACHE.move_to_end(key)

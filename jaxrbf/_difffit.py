@@ -122,7 +122,7 @@ def fit_traced(
     points, values, *, kernel, degree, smoothing, solver, radius, method, seed, background=None
 ):
     """`jaxrbf.fit` when an input is traced; same arguments (see the module docstring)."""
-    from ._fit import AUTO_DENSE_LIMIT, METHODS, _check_size, checked_kernel
+    from ._fit import AUTO_DENSE_LIMIT, METHODS, _check_size, check_background, checked_kernel
 
     x, h = _arrays(points, values)
     if method not in METHODS:
@@ -140,9 +140,9 @@ def fit_traced(
         )
     if method == "auto":
         method = "dense" if (solver is not None or n + k <= AUTO_DENSE_LIMIT) else "partition"
+    if background is not None:
+        check_background(background, dim, method)
     if method == "partition":
-        if background is not None:
-            raise InputError("`background` applies to method='dense'")
         if solver is not None:
             raise InputError(
                 "`solver` applies to method='dense' or 'global'; the partition method solves its "

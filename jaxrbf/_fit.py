@@ -310,22 +310,26 @@ def fit(
     )
 
 
-def background_values(background, x, method: str):
-    """g(`x`) of a `background` model for `fit`, after checking that it can be one."""
+def check_background(background, dim: int, method: str) -> None:
+    """That `background` (not None) can be the background of a `fit` of `dim`-D points by
+    `method` (both the concrete and the traced path)."""
     if not isinstance(background, AbstractModel):
         raise InputError(
             f"`background` must be a jaxrbf model (e.g. jaxrbf.surface_background(points, "
             f"normals)) or None, got {type(background).__name__}"
         )
-    if background.dim != x.shape[1]:
-        raise InputError(
-            f"`background` is a {background.dim}-D model but the points are {x.shape[1]}-D"
-        )
+    if background.dim != dim:
+        raise InputError(f"`background` is a {background.dim}-D model but the points are {dim}-D")
     if method != "dense":
         raise InputError(
             f"`background` applies to method='dense'; method={method!r} has its own coarse "
             "levels far from the data"
         )
+
+
+def background_values(background, x, method: str):
+    """g(`x`) of a `background` model for `fit`, after `check_background`."""
+    check_background(background, x.shape[1], method)
     g = background(x)
     if not bool(jnp.all(jnp.isfinite(g))):
         raise InputError("`background` is not finite at every point")

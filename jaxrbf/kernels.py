@@ -69,10 +69,6 @@ class AbstractKernel(eqx.Module):
     #: phi(s r) = s^k phi(r) up to a polynomial the fit absorbs (0 for kernels with a radius, which
     #: scales with the coordinates instead). Used to express `smoothing` in the input's units.
     homogeneity: ClassVar[int] = 0
-    #: phi vanishes far from its centre (Gaussian, inverse multiquadric, Wendland), so a fit is
-    #: its bare polynomial away from the data: surface fits with it want a background
-    #: (`jaxrbf.surface_background`).
-    decays: ClassVar[bool] = False
 
     def from_r2(self, r2: Float[Array, "..."]) -> Float[Array, "..."]:
         raise NotImplementedError
@@ -151,7 +147,6 @@ class Gaussian(_RadiusKernel):
     name: ClassVar[str] = "gaussian"
     min_degree: ClassVar[int] = -1
     positive_definite: ClassVar[bool] = True
-    decays: ClassVar[bool] = True
 
     def from_r2(self, r2):
         return jnp.exp(-r2 / self.radius**2)
@@ -170,7 +165,6 @@ class InverseMultiquadric(_RadiusKernel):
     name: ClassVar[str] = "inverse-multiquadric"
     min_degree: ClassVar[int] = -1
     positive_definite: ClassVar[bool] = True
-    decays: ClassVar[bool] = True
 
     def from_r2(self, r2):
         return 1.0 / jnp.sqrt(1.0 + r2 / self.radius**2)
@@ -182,7 +176,6 @@ class Wendland(_RadiusKernel):
     name: ClassVar[str] = "wendland"
     min_degree: ClassVar[int] = -1
     positive_definite: ClassVar[bool] = True
-    decays: ClassVar[bool] = True
 
     def from_r2(self, r2):
         t = _safe_sqrt(r2) / self.radius

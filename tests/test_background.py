@@ -98,7 +98,14 @@ def test_background_errors_name_the_problem():
         jaxrbf.fit(p2, np.arange(30.0), kernel="gaussian", radius=0.2, background=BG)
     with pytest.raises(InputError, match="method='dense'"):
         jaxrbf.fit(C, kernel="gaussian", radius=0.2, background=BG, method="partition")
-    with pytest.raises(InputError, match="same shape"):
+    # the traced path checks it the same way
+    with pytest.raises(InputError, match="method='dense'"):
+        jax.grad(
+            lambda r: jnp.sum(
+                jaxrbf.fit(C, kernel="gaussian", radius=r, background=BG, method="partition")(P)
+            )
+        )(0.2)
+    with pytest.raises(InputError, match="one normal per point"):
         jaxrbf.surface_background(P, N[:10])
 
 

@@ -23,9 +23,10 @@ the diagonal):
 - the background's own quality matters: on 500 samples it is poor where the bunny is thin (1.71%
   alone; the Gaussian over it 1.18%); on 1,000 (the default here) 0.30% alone.
 
-So it is opt-in for now: the surface-level paths (`fit_surface`, `tune`, the objectives) do not
-add it. The background is built on the host from concrete samples and is a constant of the fit
-(no gradient flows into it).
+So the surface-level paths (`tune`, `grid_search`, the objectives when asked, `fit_surface` with
+the dense method) add it for the kernels of `DECAYING` (`background="auto"`), not for Wendland:
+its radius is kept at `support_floor`, which already covers the box. The background is built on
+the host from concrete samples and is a constant of the fit (no gradient flows into it).
 """
 
 from __future__ import annotations
@@ -45,17 +46,33 @@ _CACHE: OrderedDict[str, object] = OrderedDict()
 _CACHE_SIZE = 8
 
 
+#: Kernels whose surface fits get a background by default (`background="auto"`).
+DECAYING = ("gaussian", "inverse-multiquadric")
+
+
+def wants_background(background, kernel: str) -> bool:
+    """Whether a surface fit with the kernel named `kernel` gets a background: `background` is
+    "auto" (the kernels of `DECAYING`), True or False."""
+    from ._errors import InputError
+
+    if isinstance(background, str) and background == "auto":
+        return kernel in DECAYING
+    if isinstance(background, (bool, np.bool_)):
+        return bool(background)
+    raise InputError(f"`background` must be 'auto', True or False, got {background!r}")
+
+
 def surface_background(points, normals, *, seed: int = 0):
     """The background of a surface fit: a global polyharmonic `RBFModel` of a random subsample of
     `BACKGROUND_SAMPLES` of the surface samples `points` with their outward `normals`, with
     off-surface points at two of the subsample's point spacings. Pass it as
     `jaxrbf.fit(..., background=...)`; see the module docstring. Float64, LU; host (safe to call
     while JAX traces: it runs eagerly)."""
+    from ._constraints import checked_samples
     from ._fit import fit
     from ._partition import coarse_constraints
-    from ._tune import _validate_samples
 
-    p, nrm = _validate_samples(points, normals)
+    p, nrm = checked_samples(points, normals)
     key = hashlib.sha1(p.tobytes() + nrm.tobytes() + str((p.shape, seed)).encode()).hexdigest()
     if key in _CACHE:
         _CACHE.move_to_end(key)

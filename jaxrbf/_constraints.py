@@ -44,6 +44,13 @@ def _unit_normals(normals: np.ndarray, n: int, dim: int) -> np.ndarray:
     return normals / length[:, None]
 
 
+def checked_samples(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    """Surface samples as float64 host arrays, checked (finite points, one finite nonzero normal
+    per point, the same dimension), the normals made unit: `(points, normals)`."""
+    p = as_points(points, "points")
+    return p, _unit_normals(normals, len(p), p.shape[1])
+
+
 def _validated_offsets(p: np.ndarray, n: np.ndarray, offset: float, sign: float) -> np.ndarray:
     """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
     off-surface point is its own origin; NaN marks points that never get there (dropped)."""

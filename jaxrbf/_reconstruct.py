@@ -241,14 +241,15 @@ def fit_surface(
     offset: float | None = None,
     seed: int = 0,
     remove_outliers: bool = False,
+    background="auto",
     verbose: bool = False,
 ) -> AbstractModel:
     """Constraints from `source` (see `constraints_from`), then `fit`.
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper;
     `radius` (kernels that have one) is a fraction of the diagonal; by default it is set from
-    the point spacing (`jaxrbf.default_radius`: 2 median nearest-neighbour spacings of the
-    surface samples for the Gaussian and the multiquadrics, 32 for Wendland).
+    the point spacing (`jaxrbf.default_radius`: 1.75 median nearest-neighbour spacings of the
+    surface samples for the Gaussian, 2 for the multiquadrics, 32 for Wendland).
     `method` as for `fit` (`auto`: one dense system up to 15,000 unknowns, a partition of unity
     beyond). For the dense and global methods `solver` defaults to `cg` (Schwarz-preconditioned
     conjugate gradients: 3-4x faster than a dense solve at 12,000 constraints) except for the
@@ -256,7 +257,12 @@ def fit_surface(
     `smoothing`: lambda (A + lambda I), in the input's units; `denoise=True` chooses it instead,
     by the held-out error on crops of the input (`jaxrbf.choose_smoothing`; 0 for clean input).
     `normals` and `remove_outliers` as for `constraints_from`.
+    `background`: a dense fit with a kernel that decays (Gaussian, inverse multiquadric) is fitted
+    over `jaxrbf.surface_background` of the samples ("auto", the default; True or False), so that
+    it has no spurious surface away from the data; the partition of unity has its own coarse
+    levels instead.
     """
+    from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
     from ._fit import METHODS
     from .kernels import AbstractKernel, kernel_class
 
@@ -324,6 +330,13 @@ def fit_surface(
         ).smoothing
     if solver is None and method != "partition":
         solver = "lu" if cls.name == "gaussian" else "cg"
+    bg = None
+    if wants_background(background, cls.name) and (method == "dense" or background is True):
+        if verbose:
+            log(
+                f"background: a global cubic fit of {min(len(p), BACKGROUND_SAMPLES):,} of the samples"
+            )
+        bg = surface_background(p, n)
     return fit(
         c,
         kernel=kernel,
@@ -333,6 +346,7 @@ def fit_surface(
         solver=solver,
         method=method,
         seed=seed,
+        background=bg,
         verbose=verbose,
     )
 

@@ -50,7 +50,7 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         "--radius",
         type=float,
         help="kernel radius, fraction of the bounding-box diagonal (default: from the point "
-        "spacing, 2 median spacings for gaussian and the multiquadrics, 32 for wendland)",
+        "spacing, 1.75 median spacings for gaussian, 2 for the multiquadrics, 32 for wendland)",
     )
     g.add_argument(
         "--offset",

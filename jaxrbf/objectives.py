@@ -14,6 +14,10 @@ signature, so any of them (or your own with the same signature) can be given to 
   at constraint i of the fit without it is e_i = c_i / (B^-1)_ii, for c = B^-1 [h; 0]. One
   inverse instead of n fits.
 
+Kernels that decay (Gaussian, inverse multiquadric) fit over a background (`background=True`,
+see `jaxrbf.surface_background`), built from the training samples of each fit, so that no
+held-out sample leaks into it; `jaxrbf.tune` asks for it with those kernels.
+
 `points` and `normals` are host data here (numpy; the split, the spacing and the offset caps are
 computed from them on the host); to differentiate with respect to points or normals, build
 `jaxrbf.surface_constraints` and call `jaxrbf.fit` yourself.
@@ -150,15 +154,28 @@ def capped_constraints(points, normals, offset):
     )
 
 
-def _fit_surface_model(points, normals, *, kernel, offset, radius, smoothing, degree, solver):
-    """The dense, differentiable fit of surface samples; returns (model, ok)."""
+def _background_of(points, normals, background: bool):
+    """The background model of a fit of these surface samples (host), or None."""
+    if not background:
+        return None
+    from ._background import surface_background
+
+    return surface_background(points, normals)
+
+
+def _fit_surface_model(
+    points, normals, *, kernel, offset, radius, smoothing, degree, solver, background=False
+):
+    """The dense, differentiable fit of surface samples (over their background when
+    `background`); returns (model, ok)."""
     from ._difffit import solve_dense
     from ._fit import RESIDUAL_TOL
     from .kernels import make_kernel
 
     c = capped_constraints(points, normals, offset)
     kern = make_kernel(kernel, radius)
-    model, residual, finite = solve_dense(c.points, c.values, kern, degree, smoothing, solver)
+    bg = _background_of(points, normals, background)
+    model, residual, finite = solve_dense(c.points, c.values, kern, degree, smoothing, solver, bg)
     return model, finite & (residual <= RESIDUAL_TOL)
 
 
@@ -177,6 +194,7 @@ def held_out_error(
     solver: str = "lu",
     use_probes: bool = False,
     residuals: bool = False,
+    background: bool = False,
 ) -> Array:
     """Fit on the samples not held out, and measure `surface_error` on the held-out ones.
 
@@ -189,6 +207,7 @@ def held_out_error(
     - `use_probes`: add the sign term of `sign_probes` (see `surface_error`); off by default:
       on spot with the Gaussian kernel it moved the optimum to a worse Chamfer distance.
     - `residuals`: return the residual vector instead of the scalar (see `surface_error`).
+    - `background`: fit over `jaxrbf.surface_background` of the training samples.
 
     **Returns:** a scalar (0 is perfect; the distance term is in units of the point spacing of
     all the samples), `inf` when the fit fails (singular system or residual above 1e-6).
@@ -209,6 +228,7 @@ def held_out_error(
         smoothing=smoothing,
         degree=degree,
         solver=solver,
+        background=background,
     )
     probes = sign_probes(p, nrm) if use_probes else None
     err = surface_error(
@@ -221,7 +241,9 @@ class HeldOutData(NamedTuple):
     """The host-side part of `held_out_error`, computed once (`held_out_data`) for
     `held_out_value_and_grad`: the training samples with their off-surface points' origins,
     normals and offset caps (those with a NaN cap left out), the held-out samples, the length
-    unit and the sign probes (empty unless asked for)."""
+    unit, the sign probes (empty unless asked for), and the background of the training samples
+    (None, or a model) with its values and gradients at the held-out samples and its values at
+    the probes (zeros without one)."""
 
     surface: Array
     out_p: Array
@@ -235,19 +257,29 @@ class HeldOutData(NamedTuple):
     length: Array
     probe_q: Array
     probe_side: Array
+    background: object
+    bg_test: Array
+    bg_test_grad: Array
+    bg_probe: Array
 
 
 def held_out_data(
-    points, normals, *, holdout: float = 0.2, seed: int = 0, test=None, use_probes: bool = False
+    points,
+    normals,
+    *,
+    holdout: float = 0.2,
+    seed: int = 0,
+    test=None,
+    use_probes: bool = False,
+    background: bool = False,
 ) -> HeldOutData:
-    """The host-side preparation of `held_out_error` (split, offset caps, point spacing, probes),
-    as arrays for `held_out_value_and_grad`. Host (KD-trees)."""
-    from ._constraints import _unit_normals, offset_caps
+    """The host-side preparation of `held_out_error` (split, offset caps, point spacing, probes,
+    the background of the training samples), as arrays for `held_out_value_and_grad`. Host
+    (KD-trees)."""
+    from ._constraints import checked_samples, offset_caps
     from ._prepare import diagonal
-    from .io import as_points
 
-    p = as_points(points, "points")
-    nrm = _unit_normals(normals, len(p), p.shape[1])
+    p, nrm = checked_samples(points, normals)
     if test is None:
         train, test = split_samples(len(p), holdout, seed)
     else:
@@ -261,6 +293,12 @@ def held_out_data(
     else:
         q, side = np.zeros((0, p.shape[1])), np.zeros(0)
     a = functools.partial(jnp.asarray, dtype=float)
+    bg = _background_of(pt, nt, background)
+    if bg is None:
+        g_test, dg_test, g_probe = np.zeros(len(test)), np.zeros((len(test), p.shape[1])), 0 * side
+    else:
+        g_test, dg_test = bg.value_and_gradient(a(p[test]))
+        g_probe = bg(a(q)) if len(q) else 0 * side
     return HeldOutData(
         a(pt),
         a(pt[ko]),
@@ -274,6 +312,10 @@ def held_out_data(
         a(point_spacing(p)),
         a(q),
         a(side),
+        bg,
+        a(g_test),
+        a(dg_test),
+        a(g_probe),
     )
 
 
@@ -295,6 +337,8 @@ def _held_out_parts(th, data: HeldOutData, kernel: str, shift=None, scale=None):
     di = jnp.minimum(th["offset"], d.in_cap)
     x = jnp.concatenate([d.surface, d.out_p + do[:, None] * d.out_n, d.in_p - di[:, None] * d.in_n])
     h = jnp.concatenate([jnp.zeros(d.surface.shape[0]), do, -di])
+    if d.background is not None:
+        h = h - d.background(x)
     if shift is None:
         shift, scale = unit_box(x)
     cls = kernel_class(kernel)
@@ -326,7 +370,9 @@ def _lu_solve_checked(b, rhs):
 def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
     """`surface_error` of the held-out fit with weights and coefficients `z` at log-parameters
     `y`, with f and grad f at the held-out samples written out (as `RBFModel` computes them, but
-    with the closed-form `_dphi_dr2`): a small program to compile and differentiate."""
+    with the closed-form `_dphi_dr2`): a small program to compile and differentiate. Returns
+    (error, the error of each held-out sample: distance + misalignment, whose mean is the error
+    without probes)."""
     from ._model import pairwise_sq, poly_basis
 
     n = data.surface.shape[0] + data.out_p.shape[0] + data.in_p.shape[0]
@@ -334,7 +380,7 @@ def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
     w, a = z[:n], z[n:]
     tn = (data.test_p - shift) / scale
     r2 = pairwise_sq(tn, xn)
-    f = kn.from_r2(r2) @ w + poly_basis(tn, degree) @ a
+    f = kn.from_r2(r2) @ w + poly_basis(tn, degree) @ a + data.bg_test
     d = _dphi_dr2(kn, r2)
     g = 2.0 * (tn * (d @ w)[:, None] - d @ (w[:, None] * xn))
     if degree >= 1:
@@ -342,8 +388,10 @@ def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
     fq = None
     if data.probe_q.shape[0]:
         qn = (data.probe_q - shift) / scale
-        fq = kn.from_r2(pairwise_sq(qn, xn)) @ w + poly_basis(qn, degree) @ a
-    return _error_terms(f, g / scale, data.test_n, data.length, fq, data.probe_side)
+        fq = kn.from_r2(pairwise_sq(qn, xn)) @ w + poly_basis(qn, degree) @ a + data.bg_probe
+    g = g / scale + data.bg_test_grad
+    dist, mis = pointwise_errors(f, g, data.test_n, data.length)
+    return _error_terms(f, g, data.test_n, data.length, fq, data.probe_side), dist + mis
 
 
 @functools.partial(jax.jit, static_argnames=("kernel", "degree"))
@@ -356,8 +404,8 @@ def _held_out_error_and_adjoint(z, lu, y, lo, hi, base, data, shift, scale, *, k
     def error(z):
         return _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree)
 
-    e, gz = jax.value_and_grad(error)(z)
-    return e, jax.scipy.linalg.lu_solve(lu, gz, trans=1)
+    (e, per), gz = jax.value_and_grad(error, has_aux=True)(z)
+    return e, per, jax.scipy.linalg.lu_solve(lu, gz, trans=1)
 
 
 def _dphi_dr2(kern, r2):
@@ -412,7 +460,7 @@ def _held_out_coupling(z, lam, y, lo, hi, base, data, shift, scale, *, kernel, d
             sm * jnp.dot(lw, w) + jnp.dot(lw, pb @ a) + jnp.dot(la, pb.T @ w) - jnp.dot(lw, h)
         )
         yy = dict(y, **{name: v})
-        err = _held_out_error_at(z, yy, lo, hi, base, data, shift, scale, kernel, degree)
+        err = _held_out_error_at(z, yy, lo, hi, base, data, shift, scale, kernel, degree)[0]
         return err - coupling
 
     v0, t0 = y[name], jnp.ones_like(y[name])
@@ -434,7 +482,16 @@ def _held_out_coupling(z, lam, y, lo, hi, base, data, shift, scale, *, kernel, d
 
 
 def held_out_value_and_grad(
-    y, lo, hi, base, data: HeldOutData, *, kernel: str, degree: int = 1, gradient: bool = True
+    y,
+    lo,
+    hi,
+    base,
+    data: HeldOutData,
+    *,
+    kernel: str,
+    degree: int = 1,
+    gradient: bool = True,
+    pointwise: bool = False,
 ):
     """`held_out_error` (with `solver="lu"`) and its gradient with respect to log-parameters,
     from a few compiled functions cached across calls (same kernel, degree and shapes).
@@ -446,9 +503,11 @@ def held_out_value_and_grad(
       (those not in `y` are held there; the radius is ignored for kernels without one).
     - `data`: from `held_out_data`. `kernel` (a name), `degree`: as for `jaxrbf.fit`.
     - `gradient`: False skips the gradient (then it is zero): the value alone costs one fit.
+    - `pointwise`: also return the error of each held-out sample (distance + misalignment; the
+      value is their mean when there are no probes), for tests of significance (`jaxrbf.tune`).
 
     **Returns:** (value, gradient dict like `y`, ok), JAX arrays: inf and a zero gradient where
-    the fit fails.
+    the fit fails; with `pointwise`, (value, gradient, ok, errors).
 
     The gradient is the adjoint one: one LU factorisation of B serves the fit (B z = [h; 0]) and
     the adjoint (B^T lam = dE/dz), and dE/dy = (partial E / partial y) at fixed z minus
@@ -461,18 +520,25 @@ def held_out_value_and_grad(
     lu, z, ok = _lu_solve_checked(b, rhs)
     del b
     if not gradient:
-        e = _held_out_error_only(z, y, *args, shift, scale, kernel=kernel, degree=degree)
-        return jnp.where(ok, e, jnp.inf), {k: jnp.zeros_like(v) for k, v in y.items()}, ok
-    e, lam = _held_out_error_and_adjoint(
-        z, lu, y, *args, shift, scale, kernel=kernel, degree=degree
-    )
+        e, per = _held_out_error_only(z, y, *args, shift, scale, kernel=kernel, degree=degree)
+        grad = {k: jnp.zeros_like(v) for k, v in y.items()}
+    else:
+        e, per, lam = _held_out_error_and_adjoint(
+            z, lu, y, *args, shift, scale, kernel=kernel, degree=degree
+        )
+        grad = _held_out_gradient(z, lam, y, args, shift, scale, ok, kernel, degree)
+    out = (jnp.where(ok, e, jnp.inf), grad, ok)
+    return out + (jnp.where(ok, per, jnp.inf),) if pointwise else out
+
+
+def _held_out_gradient(z, lam, y, args, shift, scale, ok, kernel, degree):
     grad = {}
     for k in y:
         gk = _held_out_coupling(
             z, lam, y, *args, shift, scale, kernel=kernel, degree=degree, name=k
         )
         grad[k] = jnp.where(ok, gk, 0.0)
-    return jnp.where(ok, e, jnp.inf), grad, ok
+    return grad
 
 
 def kfold_error(
@@ -488,6 +554,7 @@ def kfold_error(
     seed: int = 0,
     solver: str = "lu",
     residuals: bool = False,
+    background: bool = False,
 ) -> Array:
     """`held_out_error` averaged over `k` disjoint folds (each sample is held out once); k fits.
     Arguments as for `held_out_error`."""
@@ -506,6 +573,7 @@ def kfold_error(
             test=np.sort(f),
             solver=solver,
             residuals=residuals,
+            background=background,
         )
         for f in folds
     ]
@@ -525,6 +593,7 @@ def loocv_error(
     smoothing=0.0,
     degree: int = 1,
     residuals: bool = False,
+    background: bool = False,
     **_unused,
 ) -> Array:
     """Rippa's closed-form leave-one-out error of the dense system (Rippa 1999, Adv. Comput.
@@ -539,6 +608,9 @@ def loocv_error(
       the errors are divided by the offset, so that they compare across offsets.
     - Data form: `points` and `values` (then `normals` is None); errors divided by max|values|.
     - `kernel`, `radius`, `smoothing`, `degree`: as for `jaxrbf.fit`.
+    - `background` (surface form): fit over `jaxrbf.surface_background` of the samples (built
+      from all of them: each left-out constraint's own sample may be in its 1,000-sample
+      subsample, so the errors are slightly optimistic there).
 
     **Returns:** the root mean square of the relative errors (or, with `residuals=True`, the
     errors divided by sqrt(n)).
@@ -552,6 +624,9 @@ def loocv_error(
             raise InputError("`offset` is needed with `normals` (the surface form)")
         c = capped_constraints(points, normals, offset)
         x, h, unit = c.points, c.values, jnp.asarray(offset, dtype=float)
+        bg = _background_of(points, normals, background)
+        if bg is not None:
+            h = h - bg(x)
     else:
         if values is None:
             raise InputError("give `normals` and `offset` (surface form) or `values` (data form)")

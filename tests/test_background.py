@@ -121,3 +121,27 @@ def test_gradient_flows_through_a_fit_over_a_background():
     fd = (float(loss(a + 1e-5)) - float(loss(a - 1e-5))) / 2e-5
     assert g == pytest.approx(fd, rel=1e-4)
     assert abs(g) > 1e-6
+
+
+def test_surface_paths_add_it_for_decaying_kernels_only():
+    # tune (its objective, its final fit) and fit_surface put a Gaussian fit over the
+    # background of the samples by default, and its far field has the right sign; a cubic or
+    # Wendland fit (which covers the box by itself) gets none unless asked
+    q, side = _probes()
+    model, report = jaxrbf.tune(P, N, kernel="gaussian", radius=0.1, max_steps=2)
+    assert report.background and "over a background" in report.summary()
+    assert model.background is not None
+    assert np.mean(np.sign(np.asarray(model(q))) != side) == 0.0
+    model, report = jaxrbf.tune(P, N, kernel="gaussian", radius=0.1, max_steps=2, background=False)
+    assert not report.background and model.background is None
+    model, report = jaxrbf.tune(P, N, kernel="cubic", max_steps=2)
+    assert not report.background and model.background is None
+    over = jaxrbf.fit_surface(P, N, kernel="gaussian", method="dense")
+    assert over.background is not None
+    assert np.mean(np.sign(np.asarray(over(q))) != side) == 0.0
+    assert jaxrbf.fit_surface(P, N, kernel="wendland", method="dense").background is None
+    # the held-out objective's background comes from the training samples alone
+    data = jaxrbf.objectives.held_out_data(P, N, background=True)
+    assert data.background is not None and data.background is not jaxrbf.surface_background(P, N)
+    with pytest.raises(InputError, match="`background` must be 'auto', True or False"):
+        jaxrbf.tune(P, N, kernel="gaussian", background="yes")

@@ -31,26 +31,38 @@ np.savez(sys.argv[1], devices=jax.device_count(), f=np.asarray(pu(q)),
 """
 
 
-def _run(tmp_path: Path, devices: int) -> dict:
-    script = tmp_path / "run.py"
+def _start(tmp_path: Path, devices: int):
+    """The script on `devices` simulated devices, started as a subprocess: (process, output)."""
+    script = tmp_path / f"run{devices}.py"
     script.write_text(SCRIPT.format(tests=str(Path(__file__).parent)))
     out = tmp_path / f"out{devices}.npz"
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     flags = env.get("XLA_FLAGS", "")
     env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={devices}".strip()
-    done = subprocess.run(  # a hang (see jaxrbf/_sharding.py) fails the test instead of CI
+    proc = subprocess.Popen(
         [sys.executable, str(script), str(out)],
         env=env,
-        capture_output=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
-        timeout=600,
     )
-    assert done.returncode == 0, done.stderr[-3000:]
+    return proc, out
+
+
+def _finish(proc, out) -> dict:
+    try:  # a hang (see jaxrbf/_sharding.py) fails the test instead of CI
+        _, err = proc.communicate(timeout=600)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    assert proc.returncode == 0, err[-3000:]
     return dict(np.load(out))
 
 
 def test_sharded_matches_unsharded(tmp_path):
-    one, four = _run(tmp_path, 1), _run(tmp_path, 4)
+    # both at once: most of each run is JAX's start and XLA's compilation, one core each
+    runs = [_start(tmp_path, 1), _start(tmp_path, 4)]
+    one, four = (_finish(*r) for r in runs)
     assert int(one["devices"]) == 1 and int(four["devices"]) == 4
     # the patch fits: each device solves its share of the patches, bit for bit the same systems
     np.testing.assert_allclose(four["w"], one["w"], rtol=1e-12, atol=1e-12 * np.abs(one["w"]).max())

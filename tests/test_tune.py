@@ -11,7 +11,7 @@ import pytest
 from helpers import sphere, sphere_sdf
 
 import jaxrbf
-from jaxrbf import InputError, objectives
+from jaxrbf import InputError, _tune, objectives
 from jaxrbf._tune import support_floor
 from jaxrbf.cli import main
 
@@ -62,23 +62,26 @@ def test_objective_gradients_match_finite_differences():
 
 
 @pytest.mark.parametrize(
-    "kernel, names",
+    "kernel, names, background",
     [
-        ("gaussian", ("offset", "radius")),
-        ("wendland", ("offset", "radius", "smoothing")),
-        ("cubic", ("offset",)),
-        ("thin-plate", ("offset", "smoothing")),
+        ("gaussian", ("offset", "radius"), False),
+        ("gaussian", ("offset", "radius"), True),
+        ("wendland", ("offset", "radius", "smoothing"), False),
+        ("cubic", ("offset",), False),
+        ("thin-plate", ("offset", "smoothing"), False),
     ],
 )
-def test_adjoint_value_and_grad_matches_forward_mode(kernel, names):
+def test_adjoint_value_and_grad_matches_forward_mode(kernel, names, background):
     # the hand-written adjoint gradient (closed-form kernel derivatives, one LU for fit and
     # adjoint) against forward mode through held_out_error, with offsets clipped at some caps
+    # (and, for the Gaussian, over the background of the training samples or without one)
     start = {"offset": 0.08, "radius": 0.6, "smoothing": 1e-6}
     base = {k: jnp.asarray(v) for k, v in start.items()}
     y = {k: jnp.log(start[k]) for k in names}
     lo = {k: jnp.asarray(v - 3.0) for k, v in y.items()}
     hi = {k: jnp.asarray(v + 3.0) for k, v in y.items()}
-    data = objectives.held_out_data(P, N)
+    data = objectives.held_out_data(P, N, background=background)
+    assert (data.background is not None) == background
     use_radius = kernel in ("gaussian", "wendland")
 
     def direct(y):
@@ -90,6 +93,7 @@ def test_adjoint_value_and_grad_matches_forward_mode(kernel, names):
             offset=v["offset"],
             radius=v["radius"] if use_radius else None,
             smoothing=v["smoothing"],
+            background=background,
         )
 
     f, g, ok = objectives.held_out_value_and_grad(y, lo, hi, base, data, kernel=kernel)
@@ -123,7 +127,8 @@ def test_tune_fast_path_follows_forward_mode():
     _, fast = jaxrbf.tune(P, N, kernel="gaussian", radius=0.25, max_steps=3)
     _, slow = jaxrbf.tune(P, N, kernel="gaussian", radius=0.25, max_steps=3, objective=mine)
     assert slow.objective == "mine" and fast.objective == "held-out"
-    assert len(fast.path) == len(slow.path) == 3
+    # over the Gaussian's background: the start and its offset x2 and x4 first, then 2 steps
+    assert len(fast.path) == len(slow.path) == 5
     tol = 1e-3 * fast.path[0]["objective"]  # near-exact fits: objective values to rounding
     for a, b in zip(fast.path, slow.path, strict=True):
         assert a["objective"] == pytest.approx(b["objective"], abs=tol)
@@ -137,13 +142,26 @@ def test_tune_improves_and_reports():
     assert isinstance(model, jaxrbf.RBFModel)
     assert report.final_objective <= report.initial_objective
     assert report.params == ("offset", "radius")
-    assert len(report.path) == report.iterations >= 1
+    # the start and its offset scaled by OFFSET_SCAN first (over the background), then the steps
+    assert len(report.path) == report.iterations + 1 + len(_tune.OFFSET_SCAN)
+    assert report.iterations == 3
     assert report.path[0]["objective"] == pytest.approx(report.initial_objective)
+    for entry, factor in zip(report.path[1:], _tune.OFFSET_SCAN, strict=False):
+        assert entry["offset"] == pytest.approx(factor * report.initial["offset"])
     # the report's final objective is the objective at the final parameters
+    assert report.background  # a Gaussian fits over a background by default
     again = objectives.held_out_error(
-        P, N, kernel="gaussian", offset=report.final["offset"], radius=report.final["radius"]
+        P,
+        N,
+        kernel="gaussian",
+        offset=report.final["offset"],
+        radius=report.final["radius"],
+        background=True,
     )
     assert float(again) == pytest.approx(report.final_objective, rel=1e-3, abs=1e-6)
+    # kept because it beats the start by more than one standard error, which was measured
+    assert report.improved and np.isfinite(report.standard_error)
+    assert report.initial_objective - report.final_objective > report.standard_error
     # the model is fitted with them and interpolates the surface
     assert np.abs(np.asarray(model(P))).max() < 1e-6
     assert "tune (BFGS" in report.summary()
@@ -165,7 +183,7 @@ def test_tune_never_returns_worse_than_the_start():
 
     _, report = jaxrbf.tune(P, N, kernel="cubic", params="offset", offset=d0, objective=bowl)
     assert not report.improved
-    assert report.final["offset"] == pytest.approx(d0)
+    assert report.final["offset"] == d0  # the start itself, not exp(log(d0))
     assert report.final_objective == report.initial_objective
     assert "start is returned" in report.message
 
@@ -182,7 +200,7 @@ def test_grid_search():
 
 def test_defaults_follow_the_point_spacing():
     r1 = jaxrbf.default_radius("gaussian", P)
-    assert r1 == pytest.approx(2 * objectives.point_spacing(P))
+    assert r1 == pytest.approx(1.75 * objectives.point_spacing(P))
     assert jaxrbf.default_radius("gaussian", 10 * P) == pytest.approx(10 * r1)
     assert jaxrbf.default_radius("cubic", P) is None
     assert jaxrbf.default_offset(10 * P) == pytest.approx(10 * jaxrbf.default_offset(P))
@@ -305,3 +323,19 @@ def test_rescaled_state_matches_a_restart():
         ys, slow, _ = solver.step(fn, ys, scale, opts, slow, tags)
         np.testing.assert_allclose(yf, ys, rtol=1e-12, atol=1e-14)
     assert not np.allclose(yf, y0)
+
+
+def test_one_standard_error_rule():
+    # paired per-sample errors: a small mean improvement with a large spread is within one
+    # standard error (the start is kept), a consistent one is not
+    a = np.random.default_rng(0).uniform(0.5, 1.5, 400)
+    sign = np.tile([1.0, -1.0], 200)
+    noisy = a - 0.01 + 0.5 * sign  # mean improvement 0.01, standard error 0.025
+    steady = a - 0.01 + 0.001 * sign  # the same improvement, standard error 5e-5
+    for b, kept in ((noisy, True), (steady, False)):
+        evaluated = [(float(a.mean()), a), (float(b.mean()), b)]
+        se = _tune._standard_error(evaluated, float(a.mean()), float(b.mean()))
+        assert se == pytest.approx(np.std(a - b, ddof=1) / 20.0)
+        assert (a.mean() - b.mean() <= se) == kept
+    # nothing recorded for one of them (another objective): not measured
+    assert np.isnan(_tune._standard_error([(1.0, a)], 1.0, 0.5))

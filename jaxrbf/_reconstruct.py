@@ -334,7 +334,8 @@ def fit_surface(
     if wants_background(background, cls.name) and (method == "dense" or background is True):
         if verbose:
             log(
-                f"background: a global cubic fit of {min(len(p), BACKGROUND_SAMPLES):,} of the samples"
+                f"background: a global polyharmonic fit of {min(len(p), BACKGROUND_SAMPLES):,} of the "
+                "samples"
             )
         bg = surface_background(p, n)
     return fit(

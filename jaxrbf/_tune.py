@@ -8,8 +8,9 @@ minimiser (BFGS by default) or least-squares solver (Levenberg-Marquardt, Gauss-
 The optimiser is stepped from Python (optimistix's `init` / `step` / `terminate`), so that
 progress can be shown and the path recorded; the result is the best point it evaluated, never
 worse than the start (and, on the held-out objective, kept only where it beats the start by more
-than one standard error of the held-out samples' paired errors). Quasi-Newton minimisers (BFGS) ask for the objective only at one point per
-step (`state.y_eval`): `tune` evaluates it there itself, value and gradient, and hands both to a
+than one standard error of the held-out samples' paired errors). Quasi-Newton minimisers (BFGS)
+ask for the objective only at one point per step (`state.y_eval`): `tune` evaluates it there
+itself, value and gradient, and hands both to a
 step compiled once per solver. For the held-out objective that evaluation is
 `objectives.held_out_value_and_grad`: one LU factorisation serves the fit and the adjoint solve,
 the kernel matrix's derivative is one fused pass per parameter, and its compiled pieces are
@@ -77,8 +78,8 @@ class TuneReport:
 
     **Fields:** `params` (names tuned), `initial` / `final` (parameter values, points' units),
     `initial_objective` / `final_objective`, `iterations` (optimiser steps), `path` (the offsets
-    scanned first, if any, then one dict per step: the accepted parameters and objective), `converged` (the optimiser's own test passed),
-    `improved` (the result is better than the start; if not, the start is returned), `message`,
+    scanned first, if any, then one dict per step: the accepted parameters and objective),
+    `converged` (the optimiser's own test passed), `improved` (the result is better than the start; if not, the start is returned), `message`,
     `seconds`, `solver` (the optimiser's class name), `objective` (its name), `background`
     (whether the fits were over `jaxrbf.surface_background`), `standard_error` (of the
     improvement over the start, from the held-out samples' paired errors; NaN where not
@@ -132,6 +133,13 @@ def _standard_error(evaluated, f0: float, best: float) -> float:
     if not np.all(np.isfinite(d)):
         return float("nan")
     return float(np.std(d, ddof=1) / np.sqrt(len(d)))
+
+
+def _not_finite_at_start(obj_name: str, start: dict) -> InputError:
+    return InputError(
+        f"the {obj_name} objective is not finite at the starting point {start}: "
+        "the fit fails there; give another starting offset/radius"
+    )
 
 
 def _objective_fn(objective) -> tuple[Callable, str]:
@@ -486,10 +494,7 @@ def tune(
                 evaluated.append((float(f_try), np.asarray(per)))
             scanned.append((y_try, float(f_try)))
         if not np.isfinite(scanned[0][1]):
-            raise InputError(
-                f"the {obj_name} objective is not finite at the starting point {start}: "
-                "the fit fails there; give another starting offset/radius"
-            )
+            raise _not_finite_at_start(obj_name, start)
         y_start = min(scanned, key=lambda t: t[1] if np.isfinite(t[1]) else np.inf)[0]
     bfgs_steps = int(max_steps) - (1 if scanned else 0)
     state = init(y_start, step_args(jnp.zeros(()), y_start))
@@ -544,10 +549,7 @@ def tune(
                 if not scanned:
                     f0 = f_acc
                 if not np.isfinite(f_acc):
-                    raise InputError(
-                        f"the {obj_name} objective is not finite at the starting point {start}: "
-                        "the fit fails there; give another starting offset/radius"
-                    )
+                    raise _not_finite_at_start(obj_name, start)
                 grad = getattr(state.f_info, "grad", None)
                 if grad is not None:
                     g = max(float(jnp.max(jnp.abs(v))) for v in jax.tree.leaves(grad))

@@ -112,7 +112,8 @@ def surface_error(model, points, normals, length, *, probes=None, residuals: boo
     fq = side = None
     if probes is not None and len(probes[0]):
         fq, side = model(jnp.asarray(probes[0])), jnp.asarray(probes[1])
-    return _error_terms(model(p), model.gradient(p), normals, length, fq, side, residuals)
+    dist, mis = pointwise_errors(model(p), model.gradient(p), normals, length)
+    return _error_terms(dist, mis, length, fq, side, residuals)
 
 
 def pointwise_errors(f, g, normals, length):
@@ -127,11 +128,10 @@ def pointwise_errors(f, g, normals, length):
     return dist, mis
 
 
-def _error_terms(f, g, normals, length, fq=None, side=None, residuals: bool = False):
-    """`surface_error` from the values `f` and gradients `g` at the points (and `fq` at the
-    probes, on their `side`)."""
-    dist, mis = pointwise_errors(f, g, normals, length)
-    n = f.shape[0]
+def _error_terms(dist, mis, length, fq=None, side=None, residuals: bool = False):
+    """`surface_error` from the per-point terms `dist`, `mis` of `pointwise_errors` (and `fq`,
+    the values at the probes, on their `side`)."""
+    n = dist.shape[0]
     terms = [dist / n, mis / n]
     if fq is not None and fq.shape[0]:
         wrong = jax.nn.sigmoid(-side * fq / (0.5 * length))
@@ -391,7 +391,7 @@ def _held_out_error_at(z, y, lo, hi, base, data, shift, scale, kernel, degree):
         fq = kn.from_r2(pairwise_sq(qn, xn)) @ w + poly_basis(qn, degree) @ a + data.bg_probe
     g = g / scale + data.bg_test_grad
     dist, mis = pointwise_errors(f, g, data.test_n, data.length)
-    return _error_terms(f, g, data.test_n, data.length, fq, data.probe_side), dist + mis
+    return _error_terms(dist, mis, data.length, fq, data.probe_side), dist + mis
 
 
 @functools.partial(jax.jit, static_argnames=("kernel", "degree"))

@@ -20,10 +20,12 @@ Methods (`--methods`, all four by default):
   M = `--jaxrbf-method` (default `auto`, which picks the partition-of-unity path for large inputs;
   `none` leaves the keyword out, for a jaxrbf without it), then
   `jaxrbf.polygonize(model, resolution=R)` with R from `--resolution` (by default 256 at 10k,
-  256 at 100k, 384 at 1M). Fit and meshing times are shown separately; the fit includes building
+  320 at 100k, 640 at 1M: Poisson depth 9 meshes on a 512 grid). Fit and meshing times are shown separately; the fit includes building
   the constraints (jaxrbf's default offset: 1% of the diagonal, at most 2 point spacings for
-  the partition method) and JAX's compilation: this is the cold,
-  end-to-end time a user sees.
+  the partition method), the membrane caps over the input's holes (`jaxrbf.fill_holes`, which
+  the partition method does by default: the bunny is open at its base) and JAX's compilation:
+  this is the cold, end-to-end time a user sees. The kernel is `fit_surface`'s default: the
+  linear r for the partition method.
 - `poisson8`, `poisson9`: Open3D's screened Poisson reconstruction,
   `TriangleMesh.create_from_point_cloud_poisson(pcd, depth=8 or 9, n_threads=--threads)` on the
   same points and true normals, other parameters at Open3D's defaults, and NO density trimming:
@@ -106,7 +108,7 @@ DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
 METHODS = ("jaxrbf", "poisson8", "poisson9", "scipy")
 #: jaxrbf's meshing resolution by input size (the nearest of these sizes, on a log scale, for
 #: sizes not listed), unless --resolution says otherwise.
-DEFAULT_RESOLUTION = {10_000: 256, 100_000: 256, 1_000_000: 384}
+DEFAULT_RESOLUTION = {10_000: 256, 100_000: 320, 1_000_000: 640}
 #: The row of jaxrbf meshed on scipy's grid (made when both run): the time comparison with scipy
 #: is between runs that evaluate the same grid.
 SAME_GRID = "jaxrbf@scipy-grid"

@@ -38,6 +38,8 @@ from ._errors import SolveError as SolveError
 from ._fit import fit as fit
 from ._greedy import GreedyReport as GreedyReport
 from ._greedy import greedy_fit as greedy_fit
+from ._holes import HoleReport as HoleReport
+from ._holes import fill_holes as fill_holes
 from ._model import RBFModel as RBFModel
 from ._normals import NormalsReport as NormalsReport
 from ._normals import estimate_normals as estimate_normals

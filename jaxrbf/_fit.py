@@ -411,9 +411,14 @@ def _fit_partition(x, h, kern, degree, smoothing, shift, scale, seed, verbose):
     )
     residual = constraint_residual(model, x, h)
     if verbose:
+        layout = (
+            f"{model.n_patches:,} patches on {model.n_levels} levels"
+            if hasattr(model, "n_patches")
+            else "few enough constraints for its one global fit"
+        )
         log(
-            f"partition of unity: {model.n_patches:,} patches on {model.n_levels} levels in "
-            f"{time.perf_counter() - t0:.1f} s; relative residual {residual:.2e} at the constraints"
+            f"partition of unity: {layout} in {time.perf_counter() - t0:.1f} s; relative "
+            f"residual {residual:.2e} at the constraints"
         )
     if not np.isfinite(residual):
         raise SolveError(

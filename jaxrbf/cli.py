@@ -44,7 +44,9 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         help="for meshes: uniform samples with face normals, or vertices with area-weighted normals",
     )
     g.add_argument(
-        "--kernel", choices=list(KERNELS), help="default: cubic in 3-D, thin-plate in 2-D"
+        "--kernel",
+        choices=list(KERNELS),
+        help="default: cubic in 3-D (linear for the partition method), thin-plate in 2-D",
     )
     g.add_argument(
         "--radius",
@@ -84,6 +86,14 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         help="point clouds: drop statistical outliers (mean distance to 16 neighbours more "
         "than 2 standard deviations above the mean, then points farther from their "
         "neighbours' plane than 6x its thickness) first",
+    )
+    g.add_argument(
+        "--holes",
+        choices=("auto", "fill", "keep"),
+        default="auto",
+        help="3-D: cap the holes of the samples (closed rims of boundary points) with membrane "
+        "samples before fitting (fill), or leave them to the fit, which closes them along the "
+        "slopes at their rims (keep); auto (default): fill for the partition method only",
     )
     g.add_argument(
         "--denoise",
@@ -325,6 +335,7 @@ def _fit_kwargs(args) -> dict:
         seed=args.seed,
         remove_outliers=args.remove_outliers,
         denoise=args.denoise,
+        fill_holes={"auto": "auto", "fill": True, "keep": False}[args.holes],
         verbose=not args.quiet,
     )
 

@@ -148,11 +148,11 @@ def _membrane(uv: np.ndarray, z: np.ndarray, grid: np.ndarray):
     from scipy.sparse.linalg import spsolve
     from scipy.spatial import Delaunay
 
+    from ._clean import _directed_edges
+
     allp = np.concatenate([uv, grid])
     tri = Delaunay(allp).simplices
-    edges = np.unique(
-        np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), 1), axis=0
-    )
+    edges = np.unique(np.sort(_directed_edges(tri), axis=1), axis=0)
     n_all, n_rim = len(allp), len(uv)
     a = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_all, n_all))
     a = (a + a.T).tocsr()
@@ -201,7 +201,12 @@ def _cap(p, n, rim, spacing, tree):
         grid = grid[cKDTree(uv).query(grid)[0] > 0.5 * step]
     if len(grid) == 0:
         return None  # small enough for the fit to close on its own
-    heights, tri = _membrane(uv, z, grid)
+    from scipy.spatial import QhullError
+
+    try:
+        heights, tri = _membrane(uv, z, grid)
+    except QhullError:
+        return "degenerate rim"
     allp = np.concatenate([uv, grid])
     xyz = c + allp @ axes + np.concatenate([z, heights])[:, None] * w
     # vertex normals of the triangulated membrane (area weighted), for the grid vertices

@@ -1,5 +1,6 @@
 """Sharded and unsharded results agree: the same partition-of-unity fit, evaluation, gradients
-and mesh on 1 and on 4 (simulated CPU) devices. The 4-device run is a subprocess, because the
+and mesh on 1 and on 4 (simulated CPU) devices, and on two processes of 2 devices each under
+`jax.distributed` (two hosts, simulated on this one). Every run is a subprocess, because the
 device count is fixed when JAX starts."""
 
 from __future__ import annotations
@@ -12,9 +13,14 @@ from pathlib import Path
 import numpy as np
 
 SCRIPT = r"""
+import os
 import sys
 import numpy as np
 import jax
+if os.environ.get("JAXRBF_TEST_PROCESS"):  # "index,count,port": one of several processes
+    index, count, port = (int(v) for v in os.environ["JAXRBF_TEST_PROCESS"].split(","))
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(f"localhost:{{port}}", num_processes=count, process_id=index)
 import jaxrbf
 from jaxrbf import _partition
 sys.path.insert(0, {tests!r})
@@ -31,12 +37,22 @@ np.savez(sys.argv[1], devices=jax.device_count(), f=np.asarray(pu(q)),
 """
 
 
-def _start(tmp_path: Path, devices: int):
-    """The script on `devices` simulated devices, started as a subprocess: (process, output)."""
-    script = tmp_path / f"run{devices}.py"
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def _start(tmp_path: Path, devices: int, process: str = ""):
+    """The script on `devices` simulated devices (as process `process`, "index,count,port", of
+    a `jax.distributed` run when given), started as a subprocess: (process, output)."""
+    tag = f"{devices}" + (f"p{process.split(',')[0]}" if process else "")
+    script = tmp_path / f"run{tag}.py"
     script.write_text(SCRIPT.format(tests=str(Path(__file__).parent)))
-    out = tmp_path / f"out{devices}.npz"
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    out = tmp_path / f"out{tag}.npz"
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAXRBF_TEST_PROCESS=process)
     flags = env.get("XLA_FLAGS", "")
     env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={devices}".strip()
     proc = subprocess.Popen(
@@ -60,13 +76,19 @@ def _finish(proc, out) -> dict:
 
 
 def test_sharded_matches_unsharded(tmp_path):
-    # both at once: most of each run is JAX's start and XLA's compilation, one core each
+    # all at once: most of each run is JAX's start and XLA's compilation
+    port = _free_port()
     runs = [_start(tmp_path, 1), _start(tmp_path, 4)]
-    one, four = (_finish(*r) for r in runs)
+    runs += [_start(tmp_path, 2, f"{i},2,{port}") for i in range(2)]
+    one, four, *hosts = (_finish(*r) for r in runs)
     assert int(one["devices"]) == 1 and int(four["devices"]) == 4
-    # the patch fits: each device solves its share of the patches, bit for bit the same systems
-    np.testing.assert_allclose(four["w"], one["w"], rtol=1e-12, atol=1e-12 * np.abs(one["w"]).max())
-    np.testing.assert_allclose(four["f"], one["f"], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(four["g"], one["g"], rtol=0, atol=1e-10)
-    assert four["v"].shape == one["v"].shape
-    np.testing.assert_allclose(four["v"], one["v"], rtol=0, atol=1e-12)
+    for other in (four, *hosts):
+        # the patch fits: each device solves its share of the patches, bit for bit the same
+        # systems; with two processes, each holds every result after the exchange
+        scale = np.abs(one["w"]).max()
+        np.testing.assert_allclose(other["w"], one["w"], rtol=1e-12, atol=1e-12 * scale)
+        np.testing.assert_allclose(other["f"], one["f"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(other["g"], one["g"], rtol=0, atol=1e-10)
+        assert other["v"].shape == one["v"].shape
+        np.testing.assert_allclose(other["v"], one["v"], rtol=0, atol=1e-12)
+    assert [int(h["devices"]) for h in hosts] == [4, 4]  # 2 processes x 2 devices

@@ -34,16 +34,27 @@ def _wants_caps(fill_holes, method: str) -> bool:
     raise InputError(f"`fill_holes` must be 'auto', True or False, got {fill_holes!r}")
 
 
-def default_kernel(dim: int, method: str) -> str:
+#: From this many surface samples on, a 3-D partition of unity defaults to the linear kernel.
+LINEAR_FROM = 50_000
+
+
+def default_kernel(dim: int, method: str, n_samples: int) -> str:
     """`fit_surface`'s kernel when none is named: the paper's cubic r^3 in 3-D (thin-plate
-    r^2 log r in 2-D), except for a 3-D partition of unity, which gets the linear r (the 3-D
-    biharmonic spline of Carr et al. 2001). Measured at 100k samples meshed at R = 256
-    (Chamfer-L1 / normal consistency): the fandisk 0.0526% / 0.9916 with r^3, whose fit ripples
-    a few point spacings beside the sharp creases, against 0.0525% / 0.9924 with r; the bunny
-    0.0563% / 0.9933 against 0.0563% / 0.9934."""
+    r^2 log r in 2-D), except for a 3-D partition of unity of at least `LINEAR_FROM` samples,
+    which gets the linear r (the 3-D biharmonic spline of Carr et al. 2001). Measured
+    (Chamfer-L1 / normal consistency against the original mesh):
+
+    - 100k samples with true normals, meshed at R = 256: the fandisk 0.0526% / 0.9916 with r^3,
+      whose fit ripples a few point spacings beside the sharp creases, against 0.0525% / 0.9924
+      with r; the bunny 0.0563% / 0.9933 against 0.0563% / 0.9934;
+    - 20k raw samples (estimated normals, `denoise`, R = 192; `benchmarks/raw_scans.py`): r^3
+      is the better one, e.g. the fandisk 0.1201% / 0.9857 against 0.1208% / 0.9849 without
+      noise and the spot 0.1748% / 0.9675 against 0.1837% / 0.9624 at 0.5% noise (the bunny at
+      0.5% noise is the exception: 0.2217% / 0.9441 against 0.2096% / 0.9511).
+    """
     if dim != 3:
         return "thin-plate"
-    return "linear" if method == "partition" else "cubic"
+    return "linear" if method == "partition" and n_samples >= LINEAR_FROM else "cubic"
 
 
 def partition_offset(surface: np.ndarray) -> float:
@@ -268,7 +279,8 @@ def fit_surface(
     """Constraints from `source` (see `constraints_from`), then `fit`.
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper,
-    but to `linear` (r) for a 3-D partition of unity (`default_kernel` says why);
+    but to `linear` (r) for a 3-D partition of unity of 50,000 samples or more (`default_kernel`
+    says why);
     `radius` (kernels that have one) is a fraction of the diagonal; by default it is set from
     the point spacing (`jaxrbf.default_radius`: 1.75 median nearest-neighbour spacings of the
     surface samples for the Gaussian, 2 for the multiquadrics, 32 for Wendland).
@@ -329,7 +341,7 @@ def fit_surface(
         if len(cap):
             p, n, rebuild = np.concatenate([p, cap]), np.concatenate([n, cap_n]), True
     if kernel is None:
-        kernel = default_kernel(dim, method)
+        kernel = default_kernel(dim, method, len(surface))
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
     r = None
     if cls.has_radius and not isinstance(kernel, AbstractKernel):

@@ -329,3 +329,12 @@ def test_polygonize_prunes_components_away_from_the_data(models):
     assert len(pruned.faces) == len(plain.faces)
     assert pruned.faces.max() == len(pruned.vertices) - 1  # re-indexed, no unused vertices
     assert euler(pruned) == 0
+
+
+def test_default_kernel_of_fit_surface():
+    from jaxrbf._reconstruct import LINEAR_FROM, default_kernel
+
+    assert default_kernel(3, "dense", 10**6) == "cubic"
+    assert default_kernel(3, "partition", LINEAR_FROM - 1) == "cubic"
+    assert default_kernel(3, "partition", LINEAR_FROM) == "linear"
+    assert default_kernel(2, "partition", 10**6) == "thin-plate"

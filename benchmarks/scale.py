@@ -20,11 +20,11 @@ Methods (`--methods`, all four by default):
   M = `--jaxrbf-method` (default `auto`, which picks the partition-of-unity path for large inputs;
   `none` leaves the keyword out, for a jaxrbf without it), then
   `jaxrbf.polygonize(model, resolution=R)` with R from `--resolution` (by default 256 at 10k,
-  320 at 100k, 640 at 1M: Poisson depth 9 meshes on a 512 grid). Fit and meshing times are shown separately; the fit includes building
-  the constraints (jaxrbf's default offset: 1% of the diagonal, at most 2 point spacings for
-  the partition method), the membrane caps over the input's holes (`jaxrbf.fill_holes`, which
-  the partition method does by default: the bunny is open at its base) and JAX's compilation:
-  this is the cold, end-to-end time a user sees. The kernel is `fit_surface`'s default: the
+  320 at 100k, 640 at 1M: Poisson depth 9 meshes on a 512 grid). Fit and meshing times are
+  shown separately; the fit includes building the constraints (jaxrbf's default offset: 1% of
+  the diagonal, at most 2 point spacings for the partition method), the membrane caps over the
+  input's holes (`jaxrbf.fill_holes`, which the partition method does by default: the bunny is
+  open at its base) and JAX's compilation: this is the cold, end-to-end time a user sees. The kernel is `fit_surface`'s default: the
   linear r for the partition method from 50,000 samples on, the cubic r^3 below.
 - `poisson8`, `poisson9`: Open3D's screened Poisson reconstruction,
   `TriangleMesh.create_from_point_cloud_poisson(pcd, depth=8 or 9, n_threads=--threads)` on the

@@ -53,13 +53,9 @@ DECAYING = ("gaussian", "inverse-multiquadric")
 def wants_background(background, kernel: str) -> bool:
     """Whether a surface fit with the kernel named `kernel` gets a background: `background` is
     "auto" (the kernels of `DECAYING`), True or False."""
-    from ._errors import InputError
+    from ._prepare import auto_flag
 
-    if isinstance(background, str) and background == "auto":
-        return kernel in DECAYING
-    if isinstance(background, (bool, np.bool_)):
-        return bool(background)
-    raise InputError(f"`background` must be 'auto', True or False, got {background!r}")
+    return auto_flag(background, "background", kernel in DECAYING)
 
 
 def surface_background(points, normals, *, seed: int = 0):

@@ -392,7 +392,7 @@ PARTITION_RESIDUAL_TOL = 1e-2
 
 
 def _fit_partition(x, h, kern, degree, smoothing, shift, scale, seed, verbose):
-    from ._partition import check_memory, constraint_residual, fit_partition
+    from ._partition import PartitionModel, check_memory, constraint_residual, fit_partition
 
     check_memory(len(x), x.shape[1])
     t0 = time.perf_counter()
@@ -413,7 +413,7 @@ def _fit_partition(x, h, kern, degree, smoothing, shift, scale, seed, verbose):
     if verbose:
         layout = (
             f"{model.n_patches:,} patches on {model.n_levels} levels"
-            if hasattr(model, "n_patches")
+            if isinstance(model, PartitionModel)
             else "few enough constraints for its one global fit"
         )
         log(

@@ -99,17 +99,25 @@ def boundary_mask(
 ) -> np.ndarray:
     """True for the points of an oriented cloud (n, 3) that lie on a boundary of the sampled
     surface (see the module docstring, step 1)."""
+    return _boundary(points, normals, k, gap, tree)[0]
+
+
+def _boundary(points, normals, k: int, gap: float, tree=None):
+    """`boundary_mask`, and each point's distance to its nearest neighbour (from the same
+    neighbour query; NaN where there are too few points for the test)."""
     from scipy.spatial import cKDTree
 
     p, n = np.asarray(points, dtype=float), np.asarray(normals, dtype=float)
     k = min(k, len(p) - 1)
     if k < 3:
-        return np.zeros(len(p), dtype=bool)
+        return np.zeros(len(p), dtype=bool), np.full(len(p), np.nan)
     tree = cKDTree(p) if tree is None else tree
     out = np.empty(len(p), dtype=bool)
+    nearest = np.empty(len(p))
     for s0 in range(0, len(p), 2**17):
         sl = slice(s0, s0 + 2**17)
-        _, idx = tree.query(p[sl], k=k + 1, workers=-1)
+        dist, idx = tree.query(p[sl], k=k + 1, workers=-1)
+        nearest[sl] = dist[:, 1]
         nb = idx[:, 1:]
         d = p[nb] - p[sl, None, :]
         e1, e2 = _tangent_frames(n[sl])
@@ -122,7 +130,7 @@ def boundary_mask(
         ang = np.sort(np.where(same, ang, first[:, None]), axis=1)
         widest = np.maximum(np.diff(ang, axis=1).max(axis=1), 2 * np.pi - (ang[:, -1] - ang[:, 0]))
         out[sl] = (widest > gap) & ~crease
-    return out
+    return out, nearest
 
 
 def _rims(p: np.ndarray, boundary: np.ndarray, spacing: float) -> list[np.ndarray]:
@@ -201,6 +209,9 @@ def _cap(p, n, rim, spacing, tree):
         grid = grid[cKDTree(uv).query(grid)[0] > 0.5 * step]
     if len(grid) == 0:
         return None  # small enough for the fit to close on its own
+    side = float(np.mean(qn @ w))
+    if abs(side) < 0.2:
+        return "rim normals do not say which side is out"
     from scipy.spatial import QhullError
 
     try:
@@ -218,9 +229,6 @@ def _cap(p, n, rim, spacing, tree):
         np.add.at(vn, tri[:, j], fn)
     cap, cap_n = xyz[len(uv) :], vn[len(uv) :]
     cap_n /= np.maximum(np.linalg.norm(cap_n, axis=1, keepdims=True), 1e-300)
-    side = float(np.mean(qn @ w))
-    if abs(side) < 0.2:
-        return "rim normals do not say which side is out"
     cap_n *= np.sign(side)
     dist = tree.query(cap)[0]
     # A hole's cap is clear of the samples but for a band along its rim; a "cap" near the samples
@@ -251,9 +259,8 @@ def fill_holes(points, normals):
         report = HoleReport(0, 0, 0, 0, ())
         return np.zeros((0, 3)), np.zeros((0, 3)), report
     tree = cKDTree(p)
-    dist, _ = tree.query(p, k=2, workers=-1)
-    spacing = float(np.median(dist[:, 1]))
-    boundary = boundary_mask(p, n, tree=tree)
+    boundary, nearest = _boundary(p, n, K, GAP, tree)
+    spacing = float(np.median(nearest))
     rims = _rims(p, boundary, spacing)
     caps, skipped = [], []
     for rim in rims:

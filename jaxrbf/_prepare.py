@@ -50,6 +50,16 @@ def find_duplicates(points: np.ndarray, tol: float, pairs: np.ndarray | None = N
     return drop
 
 
+def auto_flag(value, name: str, auto: bool) -> bool:
+    """A setting that takes "auto", True or False: `auto` for "auto", else its own truth value;
+    anything else is an `InputError` naming `name`."""
+    if isinstance(value, str) and value == "auto":
+        return auto
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise InputError(f"`{name}` must be 'auto', True or False, got {value!r}")
+
+
 def check_not_flat(points: np.ndarray, what: str = "points") -> None:
     """Raise when the points lie on one hyperplane (a plane in 3-D, a line in 2-D)."""
     centred = points - points.mean(axis=0)

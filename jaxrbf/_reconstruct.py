@@ -16,7 +16,7 @@ from ._constraints import DEFAULT_OFFSET, Constraints, log
 from ._errors import InputError
 from ._fit import choose_method, fit
 from ._model import AbstractModel, n_poly
-from ._prepare import check_not_flat, diagonal
+from ._prepare import auto_flag, check_not_flat, diagonal
 
 #: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
 #: 2-core CPU. Larger inputs are subsampled to this unless `points` says otherwise.
@@ -24,14 +24,6 @@ DEFAULT_POINTS = 4000
 EXAMPLES = ("bunny",)
 #: With the partition method, the default offset is at most this many median point spacings.
 PARTITION_OFFSET_SPACINGS = 2.0
-
-
-def _wants_caps(fill_holes, method: str) -> bool:
-    if fill_holes == "auto":
-        return method == "partition"
-    if isinstance(fill_holes, (bool, np.bool_)):
-        return bool(fill_holes)
-    raise InputError(f"`fill_holes` must be 'auto', True or False, got {fill_holes!r}")
 
 
 #: From this many surface samples on, a 3-D partition of unity defaults to the linear kernel.
@@ -315,7 +307,7 @@ def fit_surface(
         raise InputError(
             f"give `smoothing` ({smoothing!r}) or `denoise` (which chooses it), not both"
         )
-    _wants_caps(fill_holes, method)  # a bad value fails here, before any work
+    auto_flag(fill_holes, "fill_holes", False)  # a bad value fails here, before any work
     frac = _offset_fraction(offset)
     p, n, diag, c = _sampled(
         source,
@@ -332,7 +324,7 @@ def fit_surface(
     surface = np.asarray(c.points[: c.n_surface])
     method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)
     rebuild = False
-    if _wants_caps(fill_holes, method) and dim == 3:
+    if auto_flag(fill_holes, "fill_holes", method == "partition") and dim == 3:
         from ._holes import fill_holes as membrane_caps
 
         cap, cap_n, report = membrane_caps(p, n)

@@ -48,8 +48,6 @@ def split_over_devices(fn, *arrays):
     (A first version used `shard_map` inside the jit-compiled functions: on simulated CPU devices
     its result resharding deadlocked at random, about one run in three, inside and outside
     lineax's loops; host-level shares need no collective at all.)"""
-    if n_devices() == 1:
-        return jax.tree.map(np.asarray, fn(*arrays))
     n = len(arrays[0])
     procs = jax.process_count()
     if procs == 1:

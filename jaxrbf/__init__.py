@@ -41,6 +41,8 @@ from ._greedy import greedy_fit as greedy_fit
 from ._holes import HoleReport as HoleReport
 from ._holes import fill_holes as fill_holes
 from ._model import RBFModel as RBFModel
+from ._noise import NoiseReport as NoiseReport
+from ._noise import estimate_noise as estimate_noise
 from ._normals import NormalsReport as NormalsReport
 from ._normals import estimate_normals as estimate_normals
 from ._partition import PartitionModel as PartitionModel

@@ -80,6 +80,10 @@ class Constraints(eqx.Module):
     - `n_surface`: how many of the points are on-surface (they come first).
     - `n_shrunk`, `n_dropped`: off-surface points whose offset was shrunk, or that were dropped,
       because they came closer to another part of the surface than to their own origin.
+    - `n_volume`: how many of the points (they come last) are volume constraints away from the
+      surface, valued by their signed distance to it (`with_volume`, `jaxrbf._winding`). The
+      partition of unity gives them to the levels whose patches reach that far, instead of
+      building patches on them.
     """
 
     points: Float[Array, "N d"]
@@ -88,6 +92,7 @@ class Constraints(eqx.Module):
     n_shrunk: int = eqx.field(static=True, default=0)
     n_dropped: int = eqx.field(static=True, default=0)
     n_merged: int = eqx.field(static=True, default=0)
+    n_volume: int = eqx.field(static=True, default=0)
 
     @classmethod
     def from_points(
@@ -199,10 +204,26 @@ class Constraints(eqx.Module):
         v, nrm = polyline_samples(vertices, closed)
         return cls.from_points(v, nrm, offset, validate=validate)
 
+    def with_volume(self, points, values) -> Constraints:
+        """These constraints with volume constraints (`points` (k, d), signed-distance `values`)
+        appended (replacing any they had)."""
+        keep = self.points.shape[0] - self.n_volume
+        return Constraints(
+            jnp.concatenate([self.points[:keep], jnp.asarray(points, dtype=float)]),
+            jnp.concatenate([self.values[:keep], jnp.asarray(values, dtype=float)]),
+            n_surface=self.n_surface,
+            n_shrunk=self.n_shrunk,
+            n_dropped=self.n_dropped,
+            n_merged=self.n_merged,
+            n_volume=len(values),
+        )
+
     def report(self) -> str:
         """One line that says what the constraints hold."""
         line = f"{self.points.shape[0]:,} constraints ({self.n_surface:,} on the surface)"
         extras = []
+        if self.n_volume:
+            extras.append(f"{self.n_volume:,} volume constraints")
         if self.n_merged:
             extras.append(f"{self.n_merged} duplicate points merged")
         if self.n_shrunk:

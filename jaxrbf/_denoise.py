@@ -28,6 +28,14 @@ against the true surface). So the choice follows the one-standard-error rule of 
 up from the minimum, whose mean held-out error stays within one standard error of the minimum's.
 Interpolation (lambda = 0) is one of the candidates: clean input keeps it, or a lambda too small
 to change the surface.
+
+The grid runs from 1e-8 to 1 diagonal^h. Real scans can want more (ten merged range scans of
+362,000 points, misregistered, chose 0.1, the top of the grid as it was): when the choice is the
+top, the grid is extended upward by two decades at a time (at most `MAX_EXTENSIONS` times), from
+the eigendecompositions already made, so an extension costs only the held-out errors of its
+candidates, until the choice falls inside it or the top passes `SATURATION` times the crops'
+largest eigenvalue, beyond which every candidate is the crop's polynomial and the choice cannot
+change. The report says when it extended, and when the choice is still the top.
 """
 
 from __future__ import annotations
@@ -47,8 +55,16 @@ from ._errors import InputError
 CROP_POINTS = 1000
 #: Crops per choice; their held-out points are pooled.
 CROPS = 3
-#: Candidate lambdas, in units of diagonal^h: 0 (interpolation), then quarter decades.
-GRID = (0.0, *(float(10.0 ** (e / 4)) for e in range(-32, -3)))
+#: Candidate lambdas, in units of diagonal^h: 0 (interpolation), then quarter decades from 1e-8
+#: to 1 (up to 0.1 before: ten merged real range scans of 362,000 points chose its top).
+GRID = (0.0, *(float(10.0 ** (e / 4)) for e in range(-32, 1)))
+#: When the choice is the top of the grid, `EXTENSION` more quarter decades are tried above it
+#: (from the same eigendecompositions: no new O(n^3) step), at most `MAX_EXTENSIONS` times ...
+EXTENSION = 8
+MAX_EXTENSIONS = 4
+#: ... and never beyond `SATURATION` times the largest eigenvalue of any crop's system, where
+#: every candidate is the crop's polynomial plus a kernel part below 1% of it.
+SATURATION = 100.0
 #: Held-out points are the crop's points within this fraction of its radius from its centre;
 #: a third of those are held out.
 INTERIOR = 0.6
@@ -61,7 +77,12 @@ class SmoothingReport:
     """What `choose_smoothing` did. `smoothing` is in the points' units (give it to `fit`);
     `relative` is it in units of diagonal^h; `grid` and `objective` the candidates (relative) and
     their mean held-out error over the crops' held-out points (inf: the fit failed);
-    `standard_error` that of the best candidate's mean, the tolerance of the choice."""
+    `standard_error` that of the best candidate's mean, the tolerance of the choice;
+    `extended`: how many times the grid was extended upward because the choice sat on its top;
+    `at_top`: the choice is still the largest candidate (the held-out error did not tell a
+    smaller lambda apart: very noisy or misregistered input, or `MAX_EXTENSIONS` reached);
+    `saturated`: the grid reached `SATURATION` times the crops' largest eigenvalue, above which
+    the fit no longer changes."""
 
     smoothing: float
     relative: float
@@ -71,6 +92,9 @@ class SmoothingReport:
     crops: int
     crop_points: int
     seconds: float
+    extended: int = 0
+    at_top: bool = False
+    saturated: bool = False
 
     def summary(self) -> str:
         obj = np.asarray(self.objective)
@@ -86,7 +110,27 @@ class SmoothingReport:
             f"points ({self.seconds:.1f} s): {obj[0]:.4f} at lambda 0, minimum {obj[best]:.4f} at "
             f"{self.grid[best]:.1e} (standard error {self.standard_error:.4f}), {obj[chosen]:.4f} "
             "at the chosen lambda (the largest within one standard error of the minimum)"
+            + self._top_note()
         )
+
+    def _top_note(self) -> str:
+        note = ""
+        if self.extended:
+            note = (
+                f"; the choice sat on the top of the grid, which was extended {self.extended} "
+                f"time(s) up to {self.grid[-1]:.1e}"
+            )
+        if self.at_top:
+            note += (
+                "; the choice is the top of the grid"
+                + (
+                    ", where the fit of every crop is its polynomial: the input is too noisy for "
+                    "the held-out error to prefer any detail"
+                    if self.saturated
+                    else " (give a larger grid, or `smoothing` by hand)"
+                )
+            )
+        return note
 
 
 def _crops(points, count, size, seed):
@@ -150,22 +194,37 @@ def choose_smoothing(
     kern = make_kernel(kernel, radius)
     unit = diagonal(p) ** kern.homogeneity
     parts = _crops(p, max(1, int(crops)), size, seed)
-    errors = [
-        _crop_errors(p[idx], nrm[idx], inner, kern, offset, degree, np.asarray(grid) * unit, seed)
-        for idx, inner in parts
-    ]
-    per_point = np.concatenate(errors, axis=0)  # (held-out points, candidates)
-    scores = per_point.mean(axis=0)
-    if not np.isfinite(scores).any():
+    setups = [_Crop(p[idx], nrm[idx], inner, kern, offset, degree, seed) for idx, inner in parts]
+    # (held-out points, candidates), the crops' held-out points pooled
+    per_point = np.concatenate([c.errors(np.asarray(grid) * unit) for c in setups], axis=0)
+    if not np.isfinite(per_point.mean(axis=0)).any():
         raise InputError(
             "choosing the smoothing: every candidate fit failed on the crops (singular systems); "
             "check the points for duplicates, or give `smoothing` by hand"
         )
-    best = int(np.argmin(scores))  # failed candidates score inf, never NaN
-    se = float(np.std(per_point[:, best], ddof=1) / np.sqrt(len(per_point)))
-    chosen = best
-    while chosen + 1 < len(grid) and scores[chosen + 1] <= scores[best] + se:
-        chosen += 1
+    # Past this, every crop's fit is its polynomial plus a vanishing kernel part: larger lambdas
+    # only scale that part down further, so the grid is never extended beyond it.
+    ceiling = SATURATION * max(c.largest() for c in setups) / unit
+    extended = 0
+    while True:
+        scores = per_point.mean(axis=0)
+        best = int(np.argmin(scores))  # failed candidates score inf, never NaN
+        se = float(np.std(per_point[:, best], ddof=1) / np.sqrt(len(per_point)))
+        chosen = best
+        while chosen + 1 < len(grid) and scores[chosen + 1] <= scores[best] + se:
+            chosen += 1
+        top = grid[-1]
+        if chosen < len(grid) - 1 or extended >= MAX_EXTENSIONS or not 0 < top < ceiling:
+            break
+        # The choice sits on the top of the grid: more quarter decades above it, from the same
+        # eigendecompositions.
+        more = tuple(top * 10.0 ** ((i + 1) / 4) for i in range(EXTENSION))
+        per_point = np.concatenate(
+            [per_point, np.concatenate([c.errors(np.asarray(more) * unit) for c in setups])],
+            axis=1,
+        )
+        grid = grid + more
+        extended += 1
     rel = grid[chosen]
     report = SmoothingReport(
         smoothing=rel * unit,
@@ -176,6 +235,9 @@ def choose_smoothing(
         crops=len(parts),
         crop_points=size,
         seconds=time.perf_counter() - t0,
+        extended=extended,
+        at_top=chosen == len(grid) - 1 and len(grid) > 1,
+        saturated=grid[-1] >= ceiling,
     )
     if verbose:
         log(report.summary())
@@ -186,45 +248,61 @@ def _crop_errors(pc, nc, inner, kern, offset, degree, lams, seed):
     """Held-out errors (points, candidates) of one crop: fit on all but a third of its interior
     points (`inner`), measure `surface_error`'s two terms at those, for every lambda in `lams`
     (the points' units) at once; inf rows where a candidate failed."""
-    from ._difffit import unit_box
-    from .objectives import capped_constraints, point_spacing
+    return _Crop(pc, nc, inner, kern, offset, degree, seed).errors(lams)
 
-    test = np.sort(
-        np.random.default_rng(seed).choice(inner, max(1, len(inner) // 3), replace=False)
-    )
-    train = np.setdiff1d(np.arange(len(pc)), test)
-    pt, nt = pc[train], nc[train]
-    c = capped_constraints(pt, nt, offset)
-    x, h = np.asarray(c.points), np.asarray(c.values)
-    shift, scale = (np.asarray(v) for v in unit_box(jnp.asarray(x)))
-    n = len(x)
-    m = -(-n // PAD) * PAD
-    xn = np.zeros((m, x.shape[1]))
-    xn[:n] = (x - shift) / scale
-    hp = np.zeros(m)
-    hp[:n] = h
-    err = _held_out_path(
-        kern.scaled(1.0 / scale),
-        jnp.asarray(xn),
-        jnp.asarray(hp),
-        jnp.asarray(np.arange(m) < n),
-        jnp.asarray(lams / scale**kern.homogeneity),
-        jnp.asarray((pc[test] - shift) / scale),
-        jnp.asarray(nc[test]),
-        jnp.asarray(point_spacing(pc) / scale),
-        degree,
-    )
-    return np.asarray(err)
+
+class _Crop:
+    """One crop's fit setup and the eigendecomposition of its system (see the module's
+    docstring), kept so that further lambdas (an extension of the grid) cost no new O(n^3) step."""
+
+    def __init__(self, pc, nc, inner, kern, offset, degree, seed):
+        from ._difffit import unit_box
+        from .objectives import capped_constraints, point_spacing
+
+        test = np.sort(
+            np.random.default_rng(seed).choice(inner, max(1, len(inner) // 3), replace=False)
+        )
+        train = np.setdiff1d(np.arange(len(pc)), test)
+        pt, nt = pc[train], nc[train]
+        c = capped_constraints(pt, nt, offset)
+        x, h = np.asarray(c.points), np.asarray(c.values)
+        shift, scale = (np.asarray(v) for v in unit_box(jnp.asarray(x)))
+        n = len(x)
+        m = -(-n // PAD) * PAD
+        xn = np.zeros((m, x.shape[1]))
+        xn[:n] = (x - shift) / scale
+        hp = np.zeros(m)
+        hp[:n] = h
+        self.scale, self.homogeneity, self.degree = float(scale), kern.homogeneity, degree
+        self.kern = kern.scaled(1.0 / scale)
+        self.xn = jnp.asarray(xn)
+        self.tp = jnp.asarray((pc[test] - shift) / scale)
+        self.tn = jnp.asarray(nc[test])
+        self.length = jnp.asarray(point_spacing(pc) / scale)
+        self.spectrum = _spectrum(
+            self.kern, self.xn, jnp.asarray(hp), jnp.asarray(np.arange(m) < n), degree
+        )
+
+    def largest(self) -> float:
+        """The largest eigenvalue of the crop's system, in the points' units: far above it the
+        fit no longer depends on lambda's size beyond a factor (it is the crop's polynomial)."""
+        return float(jnp.max(self.spectrum[0])) * self.scale**self.homogeneity
+
+    def errors(self, lams) -> np.ndarray:
+        lam = jnp.asarray(np.asarray(lams, dtype=float) / self.scale**self.homogeneity)
+        err = _path_errors(
+            self.kern, self.xn, self.spectrum, lam, self.tp, self.tn, self.length, self.degree
+        )
+        return np.asarray(err)
 
 
 @eqx.filter_jit
-def _held_out_path(kern, xn, h, mask, lams, tp, tn, length, degree: int):
-    """(test points, lambdas) held-out errors |f| / |grad f| / length + max(0, 1 - cos(grad f, n))
-    of the fits of constraints `xn` (padded; `mask` marks the real ones) with values `h`, for
-    every smoothing in `lams`, from one eigendecomposition (see the module's docstring)."""
-    from ._model import forward_value_and_gradient, kernel_block, poly_basis
+def _spectrum(kern, xn, h, mask, degree: int):
+    """The eigendecomposition V L V^T of C = Pi A Pi + Q1 Q1^T of constraints `xn` (padded; `mask`
+    marks the real ones), the projected values Pi h, and what the polynomial part needs:
+    (L, V, Pi h, Q1, R, Q1^T A, Q1^T h)."""
+    from ._model import kernel_block, poly_basis
     from ._solve import _null_space_matrix, _projector
-    from .objectives import pointwise_errors
 
     real = mask[:, None] & mask[None, :]
     a = jnp.where(real, kernel_block(kern, xn, xn), 0.0)
@@ -232,22 +310,37 @@ def _held_out_path(kern, xn, h, mask, lams, tp, tn, length, degree: int):
     k = p.shape[1]
     if k:
         q1, r = _projector(p)
+        qa, qh = q1.T @ a, q1.T @ h
         c_mat = _null_space_matrix(a, q1)
-        ph = h - q1 @ (q1.T @ h)
+        ph = h - q1 @ qh
     else:
+        q1, r = jnp.zeros((xn.shape[0], 0)), jnp.zeros((0, 0))
+        qa, qh = jnp.zeros((0, xn.shape[0])), jnp.zeros((0,))
         c_mat, ph = a, h
     # Padded rows and columns: an identity block, decoupled from the real system (zero right
     # side, so zero weights there).
     c_mat = c_mat + jnp.diag(jnp.where(mask, 0.0, 1.0))
     evals, vecs = jnp.linalg.eigh(c_mat)
+    return evals, vecs, ph, q1, r, qa, qh
+
+
+@eqx.filter_jit
+def _path_errors(kern, xn, spectrum, lams, tp, tn, length, degree: int):
+    """(test points, lambdas) held-out errors |f| / |grad f| / length + max(0, 1 - cos(grad f, n))
+    of the fits with every smoothing in `lams`, from the crop's `_spectrum`."""
+    from ._model import forward_value_and_gradient, kernel_block, poly_basis
+    from .objectives import pointwise_errors
+
+    evals, vecs, ph, q1, r, qa, qh = spectrum
     shifted = evals[:, None] + lams[None, :]
     ok = jnp.all(shifted > 1e-14 * jnp.max(jnp.abs(evals)), axis=0)
     w = vecs @ ((vecs.T @ ph)[:, None] / shifted)  # (m, lambdas)
-    if k:
-        aw = a @ w + lams[None, :] * w
-        coef = jax.scipy.linalg.solve_triangular(r, q1.T @ (h[:, None] - aw), lower=False)
+    if q1.shape[1]:
+        # P c = h - (A + lambda I) w, solved through P = Q1 R.
+        rhs = qh[:, None] - qa @ w - lams[None, :] * (q1.T @ w)
+        coef = jax.scipy.linalg.solve_triangular(r, rhs, lower=False)
     else:
-        coef = jnp.zeros((0, lams.shape[0]), dtype=h.dtype)
+        coef = jnp.zeros((0, lams.shape[0]), dtype=ph.dtype)
 
     def values(x):
         return kernel_block(kern, x, xn) @ w + poly_basis(x, degree) @ coef  # (t, lambdas)

@@ -243,6 +243,7 @@ def make_patches(
     alpha: float = ALPHA,
     min_points: int = MIN_POINTS,
     max_points: int = MAX_POINTS,
+    lead: int | None = None,
 ) -> Patches:
     """The patches of normalised constraint points `x` (n, d); see the module docstring.
 
@@ -251,16 +252,24 @@ def make_patches(
     least phi_W(1 / alpha)), grown to reach at least `min_points` constraints. Its fit takes every
     constraint in the ball; a leaf whose ball would hold more than `max_points` (where sheets of
     the surface come close, or the leaf is elongated) is split in two until none does, so every
-    local fit interpolates every constraint its weight reaches."""
+    local fit interpolates every constraint its weight reaches.
+
+    Only the first `lead` points (default: all) make leaves; the others (volume constraints
+    away from the surface) join the fits of the patches whose balls hold them."""
     from scipy.spatial import cKDTree
 
     n, _ = x.shape
+    lead = n if lead is None else lead
     tree = cKDTree(x)
-    leaves = _kd_leaves(x, np.arange(n), max(1, -(-n // leaf)))
+    leaves = _kd_leaves(x, np.arange(lead), max(1, -(-lead // leaf)))
     for _ in range(30):
         origin, radius = _balls(x, leaves, alpha)
         count = tree.query_ball_point(origin, radius, return_length=True, workers=-1)
-        split = (count > max_points) & np.array([len(lf) > 2 for lf in leaves])
+        # Down to single points: a leaf of two (a stray point and its nearest neighbour in a
+        # crowd) whose ball is cut to `max_points` below can leave both near the cut ball's rim,
+        # where every patch's weight is below TAU and the coarser level, which does not hold
+        # them, takes over; a single point is its ball's centre, at weight 1.
+        split = (count > max_points) & np.array([len(lf) > 1 for lf in leaves])
         if not split.any():
             break
         leaves = [lf for lf, s in zip(leaves, split, strict=True) if not s] + [
@@ -444,6 +453,8 @@ def fit_partition(
     verbose: bool = False,
     level: int = 0,
     surface: tuple[np.ndarray, np.ndarray] | None = None,
+    n_volume: int = 0,
+    volume: tuple[np.ndarray, np.ndarray] | None = None,
 ):
     """The partition-of-unity model of constraints `xw` with values `h`, both in the user's units
     (as are `kernel`'s radius and `smoothing`); `shift` and `scale` map them into the unit box.
@@ -456,14 +467,27 @@ def fit_partition(
     of the surface points (`surface`: points and normals, recovered from the constraints at the
     top) with an offset of `COARSE_OFFSET_SPACINGS` of that level's own point spacing: the fine level's small offset, kept on a sparse subsample,
     leaves a fallback whose zero set strays far from the data (measured: spurious sheets 3% of
-    the diagonal away on the fandisk). Other constraints are subsampled as they are."""
+    the diagonal away on the fandisk). Other constraints are subsampled as they are.
+
+    The last `n_volume` constraints are volume constraints (`volume` below the top: points and
+    signed distances to the surface): each level takes those between `VOLUME_NEAR` and
+    `VOLUME_FAR` of its own point spacings from the surface, which its patches reach and its
+    finer levels do not, into the fits of the patches that hold them (they make no patches);
+    the global base level takes every one beyond `VOLUME_NEAR` spacings (at most
+    `BASE_VOLUME`), so that far from the data f has the sign they give."""
     from ._fit import fit
 
     leaf = LEAF if leaf is None else leaf
     base_size = BASE_SIZE if base_size is None else base_size
+    if n_volume:
+        volume = (xw[-n_volume:], h[-n_volume:])
+        xw, h = xw[:-n_volume], h[:-n_volume]
     n = len(xw)
     t0 = time.perf_counter()
     if n <= base_size:
+        xv, hv = _level_volume(volume, xw, h, base=True, seed=seed + level)
+        xw, h = np.concatenate([xw, xv]), np.concatenate([h, hv])
+        n = len(xw)
         # The coarsest fallback only has to give the right sign away from the data, so it is
         # always the robust polyharmonic fit (r^3 in 3-D, r^2 log r in 2-D; LU, which compiles in a
         # third of the time CG takes at this size), whatever the
@@ -504,10 +528,14 @@ def fit_partition(
         verbose=verbose,
         level=level + 1,
         surface=coarse_surface,
+        volume=volume,
     )
     t0 = time.perf_counter()
+    xv, hv = _level_volume(volume, xw, h, base=False, seed=seed + level)
+    lead = n
+    xw, h = np.concatenate([xw, xv]), np.concatenate([h, hv])
     xn = (xw - shift) / scale
-    patches = make_patches(xn, leaf=leaf)
+    patches = make_patches(xn, leaf=leaf, lead=lead)
     kn = kernel.scaled(1.0 / scale)
     weights, coeffs, worst = fit_patches(
         kn,
@@ -551,6 +579,36 @@ def fit_partition(
             f"residual {worst:.1e}"
         )
     return model
+
+
+#: Each level takes the volume constraints between these many of its point spacings from the
+#: surface: nearer ones its finer levels cover, farther ones its patches do not reach.
+VOLUME_NEAR = 1.0
+VOLUME_FAR = 4.0
+#: The global base level takes at most this many volume constraints.
+BASE_VOLUME = 3000
+
+
+def _level_volume(volume, xw: np.ndarray, h: np.ndarray, *, base: bool, seed: int):
+    """The volume constraints (points, values) of a level whose constraints are `xw`, `h` (see
+    `fit_partition`); empty arrays when there are none."""
+    from scipy.spatial import cKDTree
+
+    dim = xw.shape[1]
+    none = np.zeros((0, dim)), np.zeros(0)
+    if volume is None or len(volume[1]) == 0:
+        return none
+    on = xw[h == 0] if np.sum(h == 0) >= 2 else xw
+    dist, _ = cKDTree(on).query(on, k=2, workers=-1)
+    spacing = float(np.median(dist[:, 1]))
+    far = np.abs(volume[1])
+    keep = far >= VOLUME_NEAR * spacing
+    if not base:
+        keep &= far <= VOLUME_FAR * spacing
+    idx = np.flatnonzero(keep)
+    if base and len(idx) > BASE_VOLUME:
+        idx = np.sort(np.random.default_rng(seed).choice(idx, BASE_VOLUME, replace=False))
+    return volume[0][idx], volume[1][idx]
 
 
 def surface_of(xw: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

@@ -126,7 +126,14 @@ def _clean_cloud(data, name: str, mode: str, outliers: bool, verbose: bool):
     return io.PointCloud(p, n)
 
 
-def surface_from(
+def surface_from(source, normals=None, **options) -> tuple[np.ndarray, np.ndarray, float]:
+    """The surface samples of `source` with outward normals: `(points, normals, diagonal)`, the
+    diagonal being that of the input (the unit of `offset` and `radius` fractions). Arguments as
+    for `constraints_from`. Host."""
+    return _surface(source, normals, **options)[:3]
+
+
+def _surface(
     source,
     normals=None,
     *,
@@ -134,12 +141,12 @@ def surface_from(
     sampling: str = "faces",
     seed: int = 0,
     subsample: bool = False,
-    remove_outliers: bool = False,
+    remove_outliers=False,
     verbose: bool = False,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """The surface samples of `source` with outward normals: `(points, normals, diagonal)`, the
-    diagonal being that of the input (the unit of `offset` and `radius` fractions). Arguments as
-    for `constraints_from`. Host."""
+):
+    """`surface_from`, and whether the input is a noisy point cloud (`jaxrbf.estimate_noise`;
+    False for meshes and polylines, None when `remove_outliers` was not "auto", which is the
+    only case that measures it): `(points, normals, diagonal, noisy)`."""
     from . import io
     from ._constraints import mesh_samples, polyline_samples
 
@@ -169,11 +176,18 @@ def surface_from(
                 f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)"
             )
         p, n = mesh_samples(v, f, points=k, sampling=sampling, seed=seed)
-        return p, n, diagonal(v)
+        return p, n, diagonal(v), False
     if isinstance(data, io.Polyline):
         p, n = polyline_samples(data.vertices, data.closed)
-        return p, n, diagonal(data.vertices)
-    data = _clean_cloud(data, name, mode, remove_outliers, verbose)
+        return p, n, diagonal(data.vertices), False
+    noisy = None
+    if isinstance(remove_outliers, str) and remove_outliers == "auto":
+        # A scan as it comes: strays and noise are dealt with without asking. A bare cloud
+        # always loses its strays (they mislead the normal estimation); one with normals only
+        # when it is noisy.
+        noisy = _is_noisy(data, name, verbose)
+        remove_outliers = noisy or data.normals is None
+    data = _clean_cloud(data, name, mode, auto_flag(remove_outliers, "remove_outliers", False), verbose)
     check_not_flat(data.points, f"points of {name}")
     if points is None and subsample and len(data.points) > DEFAULT_POINTS:
         points = DEFAULT_POINTS
@@ -183,7 +197,17 @@ def surface_from(
                 "dense method (set --points, or --method auto|partition for all)"
             )
     p, n = _subsample(data.points, data.normals, points, seed)
-    return p, n, diagonal(p)
+    return p, n, diagonal(p), noisy
+
+
+def _is_noisy(data, name: str, verbose: bool) -> bool:
+    """Whether the point cloud `data` scatters across its surface (`jaxrbf.estimate_noise`)."""
+    from ._noise import estimate_noise
+
+    report = estimate_noise(data.points, data.normals)
+    if verbose:
+        log(f"{name}: {report.summary()}")
+    return bool(report.noisy)
 
 
 def _offset_fraction(offset) -> float:
@@ -242,13 +266,19 @@ def constraints_from(
 
 
 def _sampled(source, normals, frac, **options):
-    """`surface_from(source, normals, **options)` and the constraints at offset `frac` of the
-    diagonal: `(points, normals, diagonal, constraints)`."""
-    p, n, diag = surface_from(source, normals, **options)
-    return p, n, diag, Constraints.from_points(p, n, frac * diag)
+    """`_surface(source, normals, **options)` and the constraints at offset `frac` of the
+    diagonal: `(points, normals, diagonal, constraints, noisy)`."""
+    p, n, diag, noisy = _surface(source, normals, **options)
+    return p, n, diag, Constraints.from_points(p, n, frac * diag), noisy
 
 
-def fit_surface(
+def fit_surface(source, normals=None, **options) -> AbstractModel:
+    """Constraints from `source` (see `constraints_from`), then `fit`; every option as for
+    `fit_surface_samples`, which also returns the samples."""
+    return fit_surface_samples(source, normals, **options)[0]
+
+
+def fit_surface_samples(
     source,
     normals=None,
     *,
@@ -256,19 +286,21 @@ def fit_surface(
     radius: float | None = None,
     degree: int = 1,
     smoothing: float = 0.0,
-    denoise: bool = False,
+    denoise="auto",
     solver: str | None = None,
     method: str = "auto",
     points: int | None = None,
     sampling: str = "faces",
     offset: float | None = None,
     seed: int = 0,
-    remove_outliers: bool = False,
+    remove_outliers="auto",
     background="auto",
     fill_holes="auto",
+    volume="auto",
     verbose: bool = False,
-) -> AbstractModel:
-    """Constraints from `source` (see `constraints_from`), then `fit`.
+) -> tuple[AbstractModel, np.ndarray, np.ndarray]:
+    """Constraints from `source` (see `constraints_from`), then `fit`: `(model, points,
+    normals)`, the points and normals being the surface samples fitted (hole caps included).
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper,
     but to `linear` (r) for a 3-D partition of unity of 50,000 samples or more (`default_kernel`
@@ -282,7 +314,12 @@ def fit_surface(
     Gaussian, whose fast-decaying spectrum defeats iterative solvers: it gets `lu`.
     `smoothing`: lambda (A + lambda I), in the input's units; `denoise=True` chooses it instead,
     by the held-out error on crops of the input (`jaxrbf.choose_smoothing`; 0 for clean input).
-    `normals` and `remove_outliers` as for `constraints_from`.
+    `remove_outliers=True` drops a point cloud's stray points first (`jaxrbf.remove_outliers`).
+    Both default to "auto": a point cloud's scatter across its surface is measured
+    (`jaxrbf.estimate_noise`); a noisy cloud loses its strays and is approximated with the
+    chosen smoothing, a bare clean cloud (no normals) loses its strays only, and meshes,
+    polylines and clean clouds with normals are interpolated as they are. A `smoothing` given
+    by hand turns the automatic choice off. `normals` as for `constraints_from`.
     `background`: a dense fit with a kernel that decays (Gaussian, inverse multiquadric) is fitted
     over `jaxrbf.surface_background` of the samples ("auto", the default; True or False), so that
     it has no spurious surface away from the data; the partition of unity has its own coarse
@@ -296,6 +333,11 @@ def fit_surface(
     up to 1.5% of the diagonal), and leaves them to a dense fit, whose one global interpolant
     continues the surrounding surface smoothly (right for a hole in a curved surface); True or
     False for either.
+    `volume` (3-D): volume constraints away from the samples, valued by their signed distance
+    with the sign of the samples' fast winding number (`jaxrbf.volume_constraints`), so that f
+    is positive outside and negative inside everywhere, not only near the data: an open,
+    multi-part or holed input then closes without balloons or stray sheets where the data stop.
+    "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
     from ._fit import METHODS
@@ -303,13 +345,15 @@ def fit_surface(
 
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    if denoise and smoothing:
+    auto_denoise = isinstance(denoise, str) and denoise == "auto"
+    if not auto_denoise and auto_flag(denoise, "denoise", False) and smoothing:
         raise InputError(
             f"give `smoothing` ({smoothing!r}) or `denoise` (which chooses it), not both"
         )
     auto_flag(fill_holes, "fill_holes", False)  # a bad value fails here, before any work
+    auto_flag(volume, "volume", False)
     frac = _offset_fraction(offset)
-    p, n, diag, c = _sampled(
+    p, n, diag, c, noisy = _sampled(
         source,
         normals,
         frac,
@@ -320,6 +364,12 @@ def fit_surface(
         remove_outliers=remove_outliers,
         verbose=verbose,
     )
+    if auto_denoise:
+        denoise = bool(noisy) and not smoothing
+        if denoise and verbose:
+            log("noisy input: the fit approximates, with the smoothing chosen by held-out error")
+    else:
+        denoise = auto_flag(denoise, "denoise", False)
     dim = c.points.shape[1]
     surface = np.asarray(c.points[: c.n_surface])
     method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)
@@ -359,6 +409,14 @@ def fit_surface(
             frac, rebuild = near, True
     if rebuild:
         c = Constraints.from_points(p, n, frac * diag)
+    if auto_flag(volume, "volume", True) and dim == 3:
+        from ._winding import volume_constraints
+
+        t0 = time.perf_counter()
+        vc = volume_constraints(p, n)
+        c = c.with_volume(vc.points, vc.values)
+        if verbose:
+            log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
     if verbose:
         log(c.report())
     if denoise:
@@ -384,7 +442,7 @@ def fit_surface(
                 "samples"
             )
         bg = surface_background(p, n)
-    return fit(
+    model = fit(
         c,
         kernel=kernel,
         radius=r,
@@ -396,6 +454,40 @@ def fit_surface(
         background=bg,
         verbose=verbose,
     )
+    return model, p, n
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """The median distance from each of `points` to its nearest neighbour."""
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(points).query(points, k=2, workers=-1)
+    return float(np.median(dist[:, 1]))
+
+
+#: The default meshing grid follows the samples' density: `RESOLUTION_AT` samples along the
+#: longest side for `SPACINGS_AT` median point spacings along it, growing as the
+#: `RESOLUTION_POWER` of the spacings, within `RESOLUTION_RANGE` (3-D). Measured on the bunny
+#: (the grids at which jaxrbf's Chamfer-L1 and normal consistency reach Poisson depth 9's): 256
+#: at 10k samples (140 spacings along the side), 320-400 at 100k (440), 640 at 1M (1,400); a
+#: grid finer than the samples adds vertices, not accuracy. In 2-D, `RESOLUTION_2D` samples per
+#: point spacing (contouring is cheap, and thin slits need several cells across).
+RESOLUTION_AT, SPACINGS_AT, RESOLUTION_POWER = 256, 140, 0.4
+RESOLUTION_RANGE = (128, 1024)
+RESOLUTION_2D, RESOLUTION_2D_RANGE = 6, (256, 2048)
+
+
+def default_resolution(points: np.ndarray) -> int:
+    """The meshing grid (samples along the longest side) for surface samples `points` (see
+    `RESOLUTION_AT`): a multiple of 16."""
+    side = float(np.max(np.ptp(points, axis=0)))
+    spacings = side / max(median_spacing(points), 1e-12 * side)
+    if points.shape[1] == 2:
+        r, (lo, hi) = RESOLUTION_2D * spacings, RESOLUTION_2D_RANGE
+    else:
+        r = RESOLUTION_AT * (spacings / SPACINGS_AT) ** RESOLUTION_POWER
+        lo, hi = RESOLUTION_RANGE
+    return int(np.clip(16 * round(r / 16), lo, hi))
 
 
 #: Padding of the meshing box (fraction of the centres' box) for a second try when the surface
@@ -404,19 +496,30 @@ WIDE_PADDING = 0.3
 
 
 def mesh_closed(
-    model, resolution: int = 128, *, project: bool = False, progress=None, verbose=False
+    model,
+    resolution: int = 128,
+    *,
+    project: bool = False,
+    progress=None,
+    verbose=False,
+    bounds=None,
 ):
-    """`polygonize(model)`, once more in a box grown by `WIDE_PADDING` when the mesh is open
-    (the surface left the default box: typically where it fills a hole of the input). Returns the
-    watertight mesh if either is, else the first."""
+    """`polygonize(model)` (in `bounds`, default the model's box grown by 5%), once more in a
+    box grown by `WIDE_PADDING` when the mesh is open (the surface left the box: typically
+    where it fills a hole of the input). Returns the watertight mesh if either is, else the
+    first."""
     from ._clean import is_watertight
-    from ._polygonize import polygonize
+    from ._polygonize import _bounds, polygonize
 
-    mesh = polygonize(model, resolution=resolution, project=project, progress=progress)
+    lo, hi = _bounds(model, bounds, 3, 0.05)
+    mesh = polygonize(
+        model, resolution=resolution, project=project, progress=progress, bounds=(lo, hi)
+    )
     if is_watertight(mesh):
         return mesh
+    pad = WIDE_PADDING * float(np.max(hi - lo)) / 1.1
     wide = polygonize(
-        model, resolution=resolution, project=project, progress=progress, padding=WIDE_PADDING
+        model, resolution=resolution, project=project, progress=progress, bounds=(lo - pad, hi + pad)
     )
     if is_watertight(wide):
         if verbose:
@@ -425,11 +528,19 @@ def mesh_closed(
     return mesh
 
 
+def meshing_box(samples: np.ndarray, padding: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """The box of `samples` grown by `padding` of its largest side on every side: where the
+    surface of a fit of those samples is meshed."""
+    lo, hi = samples.min(axis=0), samples.max(axis=0)
+    pad = padding * float(np.max(hi - lo))
+    return lo - pad, hi + pad
+
+
 def reconstruct(
     source,
     normals=None,
     *,
-    resolution: int = 128,
+    resolution: int | None = None,
     project: bool = False,
     progress: bool | None = None,
     verbose: bool = False,
@@ -437,16 +548,45 @@ def reconstruct(
 ):
     """`source` (a mesh, point cloud or polyline file, or points + normals) to a surface.
 
-    **Arguments:** `resolution` and `project` as for `polygonize`; every other option as for
+    **Arguments:** `resolution` and `project` as for `polygonize` (default resolution:
+    `default_resolution` of the samples, which follows their density); every other option as for
     `fit_surface` (`kernel`, `radius`, `degree`, `smoothing`, `denoise`, `solver`, `method`,
     `points`, `sampling`, `offset`, `seed`, `remove_outliers`); `normals` as for
     `constraints_from`.
 
     **Returns:** a `jaxrbf.io.Mesh` for 3-D input; for a 2-D polyline, a list of (k, 2) curves.
     """
+    model, samples, _ = fit_surface_samples(source, normals, verbose=verbose, **options)
+    return mesh_fit(
+        model, samples, resolution=resolution, project=project, progress=progress, verbose=verbose
+    )
+
+
+def mesh_fit(
+    model,
+    samples: np.ndarray,
+    *,
+    resolution: int | None = None,
+    project: bool = False,
+    progress: bool | None = None,
+    verbose: bool = False,
+):
+    """The surface of a fit of the surface `samples`: a mesh (`mesh_closed`) in 3-D, curves
+    (`contour`) in 2-D, at `resolution` (default: `default_resolution(samples)`), checked
+    against the samples before it is returned (`jaxrbf._accounts.check_output`): an output
+    that loses part of its input, or that is mostly surface far from every sample, is a
+    `SolveError` that says what went wrong, never a result."""
+    from ._accounts import check_output
+    from ._errors import SolveError
     from ._polygonize import contour
 
-    model = fit_surface(source, normals, verbose=verbose, **options)
+    if resolution is None:
+        resolution = default_resolution(samples)
+        if verbose:
+            log(
+                f"meshing on a grid of {resolution} samples along the longest side (from the "
+                "samples' point spacing; set --resolution to change it)"
+            )
     t0 = time.perf_counter()
     if model.dim == 2:
         out = contour(model, resolution=resolution, progress=progress)
@@ -454,10 +594,21 @@ def reconstruct(
             log(f"{len(out)} curves in {time.perf_counter() - t0:.1f} s")
         return out
     mesh = mesh_closed(
-        model, resolution=resolution, project=project, progress=progress, verbose=verbose
+        model,
+        resolution=resolution,
+        project=project,
+        progress=progress,
+        verbose=verbose,
+        bounds=meshing_box(samples),
     )
     if verbose:
         log(
-            f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in {time.perf_counter() - t0:.1f} s"
+            f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in "
+            f"{time.perf_counter() - t0:.1f} s"
         )
+    report = check_output(mesh.vertices, mesh.faces, samples)
+    if verbose or not report.ok:
+        log(report.summary())
+    if not report.ok:
+        raise SolveError(f"the output does not account for its input: {report.problem}")
     return mesh

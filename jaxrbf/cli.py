@@ -83,10 +83,14 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--remove-outliers",
-        action="store_true",
+        nargs="?",
+        choices=("auto", "yes", "no"),
+        const="yes",
+        default="auto",
         help="point clouds: drop statistical outliers (mean distance to 16 neighbours more "
         "than 2 standard deviations above the mean, then points farther from their "
-        "neighbours' plane than 6x its thickness) first",
+        "neighbours' plane than 6x its thickness) first; auto (default): for clouds without "
+        "normals and for noisy ones",
     )
     g.add_argument(
         "--holes",
@@ -98,9 +102,13 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--denoise",
-        action="store_true",
+        nargs="?",
+        choices=("auto", "yes", "no"),
+        const="yes",
+        default="auto",
         help="noisy input: approximate instead of interpolating, with the smoothing lambda "
-        "chosen by the held-out error on crops of the input (stays 0 for clean input)",
+        "chosen by the held-out error on crops of the input (stays 0 for clean input); auto "
+        "(default): when the point cloud's scatter across its surface says it is noisy",
     )
 
 
@@ -109,8 +117,9 @@ def _mesh_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--resolution",
         type=int,
-        default=128,
-        help="grid samples along the longest side (default 128)",
+        default=None,
+        help="grid samples along the longest side (default: from the input's point spacing, "
+        "128 to 1024 in 3-D; 128 for `mesh`)",
     )
     g.add_argument("--project", action="store_true", help="Newton-project vertices onto f = 0")
 
@@ -154,6 +163,11 @@ def _tune_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int, default=0, help="seed of the surface sampling")
 
 
+def _tristate(value: str):
+    """An "auto" / "yes" / "no" option as "auto", True or False."""
+    return {"auto": "auto", "yes": True, "no": False}[value]
+
+
 def _tune_source(source, args):
     """`(points or path, normals or None)` for `tune_surface`: a point-cloud file without normals
     (or with --normals estimate) gets estimated normals, as `reconstruct` would."""
@@ -163,7 +177,7 @@ def _tune_source(source, args):
     if source[1] is not None or not isinstance(source[0], (str, os.PathLike)):
         return source
     mode, _ = _normals_mode(getattr(args, "normals", "auto"))
-    outliers = getattr(args, "remove_outliers", False)
+    outliers = getattr(args, "remove_outliers", "no") == "yes"
     if mode == "given" and not outliers:
         return source
     data = io.read_input(source[0])
@@ -334,8 +348,8 @@ def _fit_kwargs(args) -> dict:
         sampling=args.sampling,
         offset=args.offset,
         seed=args.seed,
-        remove_outliers=args.remove_outliers,
-        denoise=args.denoise,
+        remove_outliers=_tristate(args.remove_outliers),
+        denoise=_tristate(args.denoise),
         fill_holes={"auto": "auto", "fill": True, "keep": False}[args.holes],
         verbose=not args.quiet,
     )
@@ -348,23 +362,41 @@ def _normals_arg(source, args):
     return args.normals
 
 
-def _write_surface(model, args):
-    """Mesh (or contour) `model` to `args.output`; returns the mesh (3-D) or None."""
+def _write_surface(model, args, samples=None):
+    """Mesh (or contour) `model` to `args.output`; returns the mesh (3-D) or None. With the
+    fit's surface `samples`, the grid follows their spacing and the output is checked against
+    them before it is written (`jaxrbf._reconstruct.mesh_fit`)."""
     from . import io
     from ._constraints import log
     from ._polygonize import contour
-    from ._reconstruct import mesh_closed
+    from ._reconstruct import mesh_closed, mesh_fit
 
     t0 = time.perf_counter()
     progress = None if args.quiet else True
-    if model.dim == 2:
-        curves = contour(model, resolution=max(args.resolution, 2), progress=progress)
+    if samples is not None:
+        out = mesh_fit(
+            model,
+            samples,
+            resolution=args.resolution,
+            project=args.project,
+            progress=progress,
+            verbose=not args.quiet,
+        )
+        if model.dim == 2:
+            io.write_polylines(args.output, out)
+            what = f"{len(out)} curves"
+        else:
+            mesh = out
+            io.write_mesh(args.output, mesh)
+            what = f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces"
+    elif model.dim == 2:
+        curves = contour(model, resolution=max(args.resolution or 128, 2), progress=progress)
         io.write_polylines(args.output, curves)
         what = f"{len(curves)} curves"
     else:
         mesh = mesh_closed(
             model,
-            resolution=args.resolution,
+            resolution=args.resolution or 128,
             project=args.project,
             progress=progress,
             verbose=not args.quiet,
@@ -444,7 +476,7 @@ def _out_kinds(source) -> tuple[str, ...]:
 def _run(args) -> int:
     from . import io
     from ._constraints import log
-    from ._reconstruct import fit_surface
+    from ._reconstruct import fit_surface, fit_surface_samples
     from ._serialize import load, save
 
     if args.command == "reconstruct":
@@ -460,16 +492,19 @@ def _run(args) -> int:
                     "--tune fits one dense system per step: use it with --method dense (or auto) "
                     "and --solver lu or cholesky (or none)"
                 )
-            if args.denoise:
+            if args.denoise == "yes":
                 raise InputError(
                     "--tune and --denoise are separate choices: --denoise picks the smoothing for "
                     "a fit of every point; to tune it, use `jaxrbf tune --params offset smoothing "
                     "--smoothing 1e-6` (a starting lambda > 0)"
                 )
             model, _ = _tuned(source, args)
+            samples = None
         else:
-            model = fit_surface(source[0], _normals_arg(source, args), **_fit_kwargs(args))
-        mesh = _write_surface(model, args)
+            model, samples, _ = fit_surface_samples(
+                source[0], _normals_arg(source, args), **_fit_kwargs(args)
+            )
+        mesh = _write_surface(model, args, samples)
         if mesh is not None and not args.quiet:
             _log_topology(source, mesh)
         if args.preview and model.dim == 3:

@@ -152,3 +152,125 @@ def test_tune_estimates_normals_of_a_bare_cloud(tmp_path, capsys):
     model = jaxrbf.load(out)
     inside, outside = np.asarray(model(np.array([[0.0, 0, 0], [2.0, 0, 0]])))
     assert inside < 0 < outside
+
+
+# --- the noise estimate ---------------------------------------------------------------------
+
+
+def cube_samples(n, seed=0):
+    """Uniform samples of the surface of the cube [-1, 1]^3 (twelve sharp edges, eight corners)."""
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1, 1, (n, 3))
+    axis = rng.integers(0, 3, n)
+    p[np.arange(n), axis] = rng.choice([-1.0, 1.0], n)
+    return p
+
+
+def test_noise_estimate_tells_clean_from_noisy():
+    from jaxrbf._noise import NOISY_SPACING, estimate_noise
+
+    p, n = sphere(6000)
+    diag = float(np.linalg.norm(np.ptp(p, axis=0)))
+    clean = estimate_noise(p)
+    assert not clean.noisy and clean.relative_spacing < 0.2 * NOISY_SPACING, clean
+    assert not estimate_noise(p, n).noisy
+    noisy = p + 0.005 * diag * np.random.default_rng(0).standard_normal(p.shape)
+    r = estimate_noise(noisy)
+    assert r.noisy and r.relative_spacing > 3 * NOISY_SPACING
+    # sigma itself: within 15% of the noise added (per coordinate, so across the surface too)
+    assert abs(r.relative_diagonal / 0.005 - 1) < 0.15, r.relative_diagonal
+    assert abs(r.sigma - r.relative_diagonal * r.diagonal) < 1e-12
+    assert "noisy" in r.summary() and "clean enough" in clean.summary()
+    # Noise of 0.1% of the diagonal, at this density a fifth of a spacing, is noisy too.
+    assert estimate_noise(p + 0.2 * diag * (noisy - p)).noisy
+
+
+def test_noise_estimate_ignores_creases_and_sees_misregistration():
+    from jaxrbf._noise import estimate_noise
+
+    cube = cube_samples(8000)
+    r = estimate_noise(cube)
+    # A plane fitted across an edge leaves about a spacing; the quadric's low quantile does not.
+    assert not r.noisy and r.relative_spacing < 0.01, r
+    assert r.rough_fraction > 0  # the neighbourhoods across the edges are rough ...
+    diag = float(np.linalg.norm(np.ptp(cube, axis=0)))
+    noisy = cube + 0.0025 * diag * np.random.default_rng(1).standard_normal(cube.shape)
+    assert estimate_noise(noisy).noisy  # ... and noise is seen through them
+    # Two overlapping scans of a sphere, registered 0.2 of a spacing apart along the normal.
+    p, _ = sphere(4000)
+    spacing = estimate_noise(p).spacing
+    q, _ = sphere(4000, radius=1 + 0.2 * spacing)
+    rot = np.linalg.qr(np.random.default_rng(2).standard_normal((3, 3)))[0]
+    two = estimate_noise(np.vstack([p, q @ rot.T]))
+    assert two.noisy, two
+
+
+def test_noise_estimate_widens_for_large_noise_and_2d():
+    from jaxrbf._noise import estimate_noise
+
+    p, _ = sphere(20000)
+    diag = float(np.linalg.norm(np.ptp(p, axis=0)))
+    # 0.5% of the diagonal is ~0.7 spacings here: 12 neighbours would follow it.
+    noisy = p + 0.005 * diag * np.random.default_rng(3).standard_normal(p.shape)
+    r = estimate_noise(noisy)
+    assert r.k == 12 and r.thinned > 1
+    assert abs(r.relative_diagonal / 0.005 - 1) < 0.15, r.relative_diagonal
+    t = np.linspace(0, 2 * np.pi, 3000, endpoint=False)
+    circle = np.stack([np.cos(t), np.sin(t)], axis=1)
+    assert not estimate_noise(circle).noisy
+    shaken = circle + 0.004 * np.random.default_rng(4).standard_normal(circle.shape)
+    assert estimate_noise(shaken).noisy
+
+
+def test_noise_estimate_bad_input():
+    from jaxrbf._noise import estimate_noise
+
+    p, n = sphere(100)
+    with pytest.raises(jaxrbf.InputError, match="at least 8"):
+        estimate_noise(p, k=3)
+    with pytest.raises(jaxrbf.InputError, match="at least 13 points"):
+        estimate_noise(p[:10])
+    with pytest.raises(jaxrbf.InputError, match="shape of `points`"):
+        estimate_noise(p, n[:5])
+    with pytest.raises(jaxrbf.InputError, match="finite and non-zero"):
+        estimate_noise(p, 0 * n)
+    with pytest.raises(jaxrbf.InputError, match="threshold"):
+        estimate_noise(p, threshold=0)
+    with pytest.raises(jaxrbf.InputError, match="all points coincide"):
+        estimate_noise(np.zeros((50, 3)))
+
+
+# --- the lambda grid ------------------------------------------------------------------------
+
+
+def test_grid_reaches_past_the_old_top_and_extends_from_its_top():
+    from jaxrbf import _denoise
+
+    assert _denoise.GRID[0] == 0 and _denoise.GRID[-1] >= 1.0  # the old top was 0.1
+    steps = np.diff(np.log10(_denoise.GRID[1:]))
+    assert np.allclose(steps, 0.25)
+    noisy, true = ellipsoid_cloud(1500, 0.008, seed=5)
+    kw = dict(offset=0.02, crops=2, crop_points=600)
+    full = jaxrbf.choose_smoothing(noisy, true, **kw)
+    assert full.extended == 0 and not full.at_top
+    # A grid whose top sits below the choice: extended upward until the choice is inside it,
+    # and the same choice as the full grid (same crops, same eigendecompositions' errors).
+    short = tuple(g for g in full.grid if g < full.relative / 50)
+    r = jaxrbf.choose_smoothing(noisy, true, grid=short, **kw)
+    assert r.extended >= 1 and not r.at_top and len(r.objective) == len(r.grid)
+    assert np.isclose(r.relative, full.relative, rtol=1e-9), (r.relative, full.relative)
+    i = int(np.argmin(np.abs(np.asarray(full.grid) - r.grid[-1])))
+    assert np.isclose(r.objective[-1], full.objective[i], rtol=1e-9)
+    assert "extended" in r.summary()
+
+
+def test_choice_on_the_top_of_the_grid_is_reported(monkeypatch):
+    from jaxrbf import _denoise
+
+    monkeypatch.setattr(_denoise, "MAX_EXTENSIONS", 0)
+    noisy, true = ellipsoid_cloud(800, 0.008, seed=6)
+    r = jaxrbf.choose_smoothing(
+        noisy, true, offset=0.02, crops=1, crop_points=500, grid=(0.0, 1e-8, 1e-7)
+    )
+    assert r.at_top and r.extended == 0 and r.relative == 1e-7
+    assert "the choice is the top of the grid" in r.summary()

@@ -62,8 +62,9 @@ def test_a_flat_sheet_is_not_capped_over_itself():
 
 
 def test_fit_surface_caps_the_hole_instead_of_bulging():
-    """The fit over the capped samples crosses the sphere's axis near the rim's plane; without
-    the caps it continues the sphere's slopes and bulges far above it."""
+    """The fit over the capped samples crosses the sphere's axis near the rim's plane, and so
+    does the default fit, whose volume constraints (the winding number) close the hole; with
+    neither it continues the sphere's slopes and bulges far above it."""
     top = 0.6
     p, n = open_sphere(1500, top=top)
     axis = np.c_[np.zeros(400), np.zeros(400), np.linspace(0.0, 1.6, 400)]
@@ -73,8 +74,10 @@ def test_fit_surface_caps_the_hole_instead_of_bulging():
         return axis[np.argmax(f > 0), 2]  # first point outside, going up the axis
 
     capped = jaxrbf.fit_surface(p, n, method="dense", fill_holes=True)
-    bare = jaxrbf.fit_surface(p, n, method="dense")  # "auto": a dense fit keeps its holes
+    default = jaxrbf.fit_surface(p, n, method="dense")  # "auto": a dense fit keeps its holes
+    bare = jaxrbf.fit_surface(p, n, method="dense", volume=False)
     assert abs(crossing(capped) - top) < 0.05  # about a point spacing
+    assert abs(crossing(default) - top) < 0.05
     assert crossing(bare) - top > 0.1
 
 

@@ -1,0 +1,651 @@
+"""Wild inputs: jaxrbf's default command line against Open3D's screened Poisson, input by input.
+
+What it measures. On every input, jaxrbf runs as a user runs it: `jaxrbf reconstruct IN -o
+OUT.ply` in a subprocess, with no options at all (`--jaxrbf-args` appends some; by default none:
+the benchmark measures the defaults), its stderr (and stdout) kept in a log file per input, its
+wall time measured around the subprocess, so Python start-up, imports and JAX's compilation are
+included: it is what the user waits for. A non-zero exit (or a run past `--timeout`, default
+1800 s) is a failure, shown with the last line of the log. Open3D's screened Poisson,
+`TriangleMesh.create_from_point_cloud_poisson(pcd, depth=9)` with its other parameters at their
+defaults and NO density trimming, runs in this process on the same points.
+
+Inputs (files from the shared test data, `../shared/data`; an input whose file is missing is
+skipped, and the skipped ones are listed at the end):
+
+1. meshes sampled with their true normals: N points uniform by area on the faces, each with its
+   face's normal (`jaxrbf.metrics.sample_surface`, seed `--seed`), written as a binary PLY point
+   cloud with nx ny nz. `teapot-10k` (open, non-manifold, several pieces), `suzanne-10k` (open,
+   self-touching), `beetle-10k` (a polygon soup of 33 open pieces, whose face normals need not
+   agree), `beetle-alt-10k` (one open surface), `bunny-10k` and `bunny-100k`. Poisson gets the
+   same true normals. The reference is the mesh.
+2. a virtual range scanner, after Berger et al. 2013 ("A benchmark for surface reconstruction"),
+   on the Stanford bunny, the cow and the fandisk (`scan-bunny`, `scan-cow`, `scan-fandisk`). The
+   mesh is moved and scaled to a unit bounding-box diagonal (internally only: the cloud is
+   written back in the mesh's own units). SCAN_VIEWS = 8 pinhole cameras look at the box centre
+   from SCAN_DISTANCE = 2 diagonals away, in seeded random directions: azimuths stratified (one
+   per 45 degree sector, jittered), elevations uniform on the sphere between SCAN_MIN_ELEVATION
+   = -20 degrees and the zenith (+y is up), so the underside is seen at best obliquely and some
+   regions (the bottom, deep concavities) by no view. Each camera casts a SCAN_PIXELS = 480 x 480
+   grid of rays over a SCAN_FOV = 32 degree field of view onto the mesh
+   (`open3d.t.geometry.RaycastingScene`); a hit at more than SCAN_MAX_INCIDENCE = 80 degrees
+   from the surface normal (grazing) is dropped. Each hit is moved along its ray by Gaussian noise
+   of standard deviation SCAN_NOISE = 0.15% of the diagonal x (depth / SCAN_DISTANCE), and each
+   view's points get their own small rigid misregistration: a rotation about the centre by an
+   angle uniform in SCAN_ROTATION = 0.1-0.2 degrees about a random axis, and a translation of
+   SCAN_TRANSLATION = 0.1% of the diagonal in a random direction. The views' points (220k on
+   the cow to 340k on the fandisk) are pooled and subsampled uniformly to SCAN_POINTS = 150,000,
+   and written WITHOUT normals as a bare `.xyz` file (3 columns). The scanner's progress line
+   says how much of the surface no view saw (farther than 1% of the diagonal from every scan
+   point; with seed 0 about 0.1% of the cow, 1% of the bunny, 3.5% of the fandisk). jaxrbf gets
+   the file as is; Open3D gets the same points and estimates its normals
+   (`estimate_normals(KDTreeSearchParamKNN(30))`, `orient_normals_consistent_tangent_plane(30)`,
+   timed together with Poisson). The reference is the mesh.
+3. the two real bare clouds `scanned-leg.xyz` (`leg`) and `anchor.xyz` (`anchor`): no normals
+   and no reference surface. jaxrbf gets the file; Open3D as in 2.
+
+Figures, per input and method:
+- with a reference (1, 2): wall time (s); Chamfer-L1 (% of the reference's bounding-box
+  diagonal) and normal consistency (NC, 1 is best) against the reference; precision (share of
+  output-surface samples within 0.5% of the diagonal of the reference's samples) and recall
+  (share of reference samples within 0.5% of the output's samples). All from one sampling of
+  `--samples` points per surface (default 200,000; `jaxrbf.metrics`, seed `--seed` + 1, the same
+  for both methods); sampling alone costs about 0.1% Chamfer at 200k.
+- without one (3): the mean and 95th percentile of the distance from the input points to the
+  output surface (% of the input's bounding-box diagonal; the surface is sampled at
+  ONE_SIDED_SAMPLES = 500,000 points, distances by KD-tree), and the far share: the share of
+  the output surface's area (of its samples) farther than 1% of the diagonal from every input
+  point, i.e. surface invented where there is no data.
+- both: the output mesh's connected components (faces joined by shared vertices), its vertex
+  count, and whether it is watertight (`jaxrbf.is_watertight`: every edge shared by exactly two
+  consistently oriented faces).
+
+Targets, PASS or FAIL per input, then a summary line:
+- with a reference: jaxrbf did not fail, and its Chamfer-L1 <= Poisson's, its NC >= Poisson's
+  and its precision at 0.5% >= Poisson's;
+- without one: jaxrbf did not fail, and its far share <= Poisson's and its mean distance <=
+  Poisson's.
+A comparison against a Poisson run that raised counts as met. The exit status is 0 whatever the
+verdicts (it is a benchmark), unless the script itself fails.
+
+Run from the repository root (Open3D comes with the benchmark extra, `pip install -e .[bench]`):
+
+    python benchmarks/wild.py --list                          # the inputs, and which are present
+    python benchmarks/wild.py                                 # everything
+    python benchmarks/wild.py --inputs suzanne-10k scan-cow --keep /tmp/wild --json wild.json
+
+`--keep DIR` keeps every input cloud, output mesh and jaxrbf log in DIR (else a temporary folder
+is used and removed). jaxrbf runs with this process's environment, unchanged (thread counts,
+JAX_PLATFORMS), as a user's shell would start it; other processes on the machine shift the
+timings, so the load average at the start is printed with the machine, and so is the
+checkout's git commit (jaxrbf is installed editable: its version number alone does not say which
+code ran).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import (  # noqa: E402
+    DATA_DIR,
+    REPO_ROOT,
+    ensure_jaxrbf_importable,
+    format_table,
+    machine_info,
+)
+
+# --- the virtual range scanner (lengths in units of the mesh's bounding-box diagonal) ---------
+SCAN_VIEWS = 8
+SCAN_DISTANCE = 2.0  # camera distance from the box centre
+SCAN_MIN_ELEVATION = -20.0  # degrees; no view from lower down
+SCAN_FOV = 32.0  # degrees, horizontal (the images are square)
+SCAN_PIXELS = 480  # rays per image side
+SCAN_MAX_INCIDENCE = 80.0  # degrees between ray and surface normal; grazing hits beyond are dropped
+SCAN_NOISE = 0.0015  # standard deviation along the ray at depth SCAN_DISTANCE (scaled with depth)
+SCAN_ROTATION = (0.1, 0.2)  # degrees, per-view misregistration angle range
+SCAN_TRANSLATION = 0.001  # per-view misregistration shift
+SCAN_POINTS = 150_000  # the pooled hits are subsampled to this many
+
+POISSON_DEPTH = 9
+NORMAL_KNN = 30  # Open3D's normal estimation and orientation, for inputs without normals
+THRESHOLD = 0.005  # precision and recall, fraction of the reference's diagonal
+FAR = 0.01  # far share, fraction of the input's diagonal
+ONE_SIDED_SAMPLES = 500_000
+
+
+@dataclass(frozen=True)
+class Input:
+    name: str
+    kind: str  # "mesh": sampled with true normals; "scan": virtual scanner; "cloud": a real scan
+    file: str
+    points: int = 0  # surface samples, for kind "mesh"
+
+    def describe(self) -> str:
+        if self.kind == "mesh":
+            return f"{self.points:,} samples of {self.file} with true normals"
+        if self.kind == "scan":
+            return f"virtual range scan of {self.file} ({SCAN_VIEWS} views), no normals"
+        return f"{self.file} as is, no normals, no reference"
+
+
+INPUTS = (
+    Input("teapot-10k", "mesh", "teapot.obj", 10_000),
+    Input("suzanne-10k", "mesh", "suzanne.obj", 10_000),
+    Input("beetle-10k", "mesh", "beetle.obj", 10_000),
+    Input("beetle-alt-10k", "mesh", "beetle-alt.obj", 10_000),
+    Input("bunny-10k", "mesh", "stanford-bunny.obj", 10_000),
+    Input("bunny-100k", "mesh", "stanford-bunny.obj", 100_000),
+    Input("scan-bunny", "scan", "stanford-bunny.obj"),
+    Input("scan-cow", "scan", "cow.obj"),
+    Input("scan-fandisk", "scan", "fandisk.obj"),
+    Input("leg", "cloud", "scanned-leg.xyz"),
+    Input("anchor", "cloud", "anchor.xyz"),
+)
+BY_NAME = {i.name: i for i in INPUTS}
+
+
+# --- inputs -----------------------------------------------------------------------------------
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def virtual_scan(mesh, seed: int) -> tuple[np.ndarray, dict]:
+    """A simulated multi-view range scan of `mesh` (see the module docstring for the model).
+
+    Returns (points (n, 3) in the mesh's units, per-scan statistics: among them `unseen`, the
+    share of the surface (of SCAN_POINTS area-uniform samples) farther than FAR from every scan
+    point)."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    from jaxrbf import metrics
+
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    centre, diag = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(((mesh.vertices - centre) / diag).astype(np.float32)),
+        o3d.core.Tensor(mesh.faces.astype(np.uint32)),
+    )
+    rng = np.random.default_rng(seed)
+    azimuth = (np.arange(SCAN_VIEWS) + rng.random(SCAN_VIEWS)) * (2 * np.pi / SCAN_VIEWS)
+    sin_el = rng.uniform(np.sin(np.radians(SCAN_MIN_ELEVATION)), 1.0, SCAN_VIEWS)
+    cos_el = np.sqrt(1.0 - sin_el**2)
+    eyes = SCAN_DISTANCE * np.stack(
+        [cos_el * np.cos(azimuth), sin_el, cos_el * np.sin(azimuth)], axis=1
+    )
+    cos_max = np.cos(np.radians(SCAN_MAX_INCIDENCE))
+    views, hits, grazing = [], 0, 0
+    for eye, s in zip(eyes, sin_el, strict=True):
+        up = [0.0, 1.0, 0.0] if abs(s) < 0.99 else [1.0, 0.0, 0.0]
+        rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+            SCAN_FOV,
+            o3d.core.Tensor([0.0, 0.0, 0.0], dtype=o3d.core.float32),
+            o3d.core.Tensor(eye.astype(np.float32)),
+            o3d.core.Tensor(up, dtype=o3d.core.float32),
+            SCAN_PIXELS,
+            SCAN_PIXELS,
+        )
+        cast = scene.cast_rays(rays)
+        rays = rays.numpy().reshape(-1, 6).astype(np.float64)
+        t = cast["t_hit"].numpy().reshape(-1).astype(np.float64)
+        hit = np.isfinite(t)
+        direction = rays[hit, 3:]
+        length = np.linalg.norm(direction, axis=1)
+        u = direction / length[:, None]
+        normal = cast["primitive_normals"].numpy().reshape(-1, 3)[hit].astype(np.float64)
+        steep = np.abs(np.einsum("ij,ij->i", u, _unit(normal))) >= cos_max
+        hits += int(hit.sum())
+        grazing += int((~steep).sum())
+        depth = (t[hit] * length)[steep]
+        depth += rng.normal(size=depth.shape) * (SCAN_NOISE * depth / SCAN_DISTANCE)
+        p = eye + depth[:, None] * u[steep]
+        axis = _unit(rng.normal(size=3))
+        angle = np.radians(rng.uniform(*SCAN_ROTATION))
+        shift = SCAN_TRANSLATION * _unit(rng.normal(size=3))
+        views.append(Rotation.from_rotvec(angle * axis).apply(p) + shift)
+    pooled = np.concatenate(views)
+    if len(pooled) > SCAN_POINTS:
+        pooled = pooled[np.sort(rng.choice(len(pooled), SCAN_POINTS, replace=False))]
+    surface, _ = metrics.sample_surface(mesh, SCAN_POINTS, seed=seed + 2)
+    gap = cKDTree(pooled).query((surface - centre) / diag, workers=-1)[0]
+    stats = dict(
+        views=SCAN_VIEWS,
+        elevations_deg=np.degrees(np.arcsin(sin_el)).round(1).tolist(),
+        azimuths_deg=np.degrees(azimuth).round(1).tolist(),
+        hits=hits,
+        grazing_dropped=grazing,
+        kept=hits - grazing,
+        points=len(pooled),
+        unseen=float(np.mean(gap > FAR)),
+    )
+    return pooled * diag + centre, stats
+
+
+def prepare(inp: Input, workdir: Path, seed: int):
+    """(file for jaxrbf, points, normals or None, reference mesh or None, notes) for `inp`."""
+    from jaxrbf import io, metrics
+
+    path = DATA_DIR / inp.file
+    if inp.kind == "cloud":
+        return path, io.read_points(path).points, None, None, {}
+    ref = io.read_mesh(path)
+    if inp.kind == "mesh":
+        points, normals = metrics.sample_surface(ref, inp.points, seed=seed)
+        out = workdir / f"{inp.name}.ply"
+        io.write_points(out, points, normals)
+        return out, points, normals, ref, {}
+    points, stats = virtual_scan(ref, seed)
+    out = workdir / f"{inp.name}.xyz"
+    io.write_points(out, points)
+    return out, points, None, ref, dict(scan=stats)
+
+
+# --- the two methods --------------------------------------------------------------------------
+
+
+def jaxrbf_command() -> list[str]:
+    """The `jaxrbf` console script of this Python's environment (else the one on PATH)."""
+    here = Path(sys.executable).with_name("jaxrbf")
+    exe = str(here) if here.is_file() else shutil.which("jaxrbf")
+    if exe:
+        return [exe]
+    return [sys.executable, "-c", "import sys; from jaxrbf.cli import main; sys.exit(main())"]
+
+
+def _last_line(log: Path) -> str:
+    """The last non-blank line of `log` (progress bars' carriage returns split lines too)."""
+    text = log.read_text(errors="replace").replace("\r", "\n")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1] if lines else "(no output)"
+
+
+def run_jaxrbf(source: Path, out: Path, log: Path, extra: list[str], timeout: float) -> dict:
+    """`jaxrbf reconstruct source -o out [extra]`, timed; its output goes to `log`."""
+    import jaxrbf
+    from jaxrbf import io
+
+    cmd = [*jaxrbf_command(), "reconstruct", str(source), "-o", str(out), *extra]
+    t0 = time.perf_counter()
+    with open(log, "w") as fh:
+        try:
+            proc = subprocess.run(cmd, stdout=fh, stderr=fh, timeout=timeout, check=False)
+        except subprocess.TimeoutExpired:
+            seconds = time.perf_counter() - t0
+            return dict(ok=False, seconds=seconds, error=f"timed out after {timeout:g} s")
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0:
+        return dict(ok=False, seconds=seconds, error=f"exit {proc.returncode}: {_last_line(log)}")
+    try:
+        mesh = io.read_mesh(out)
+    except (OSError, jaxrbf.InputError) as exc:
+        return dict(ok=False, seconds=seconds, error=f"exit 0 but {out.name} unreadable: {exc}")
+    return dict(ok=True, seconds=seconds, mesh=mesh)
+
+
+def run_poisson(points: np.ndarray, normals: np.ndarray | None, out: Path) -> dict:
+    """Open3D's screened Poisson at depth 9 on `points` (with Open3D's own normals when `normals`
+    is None, their estimation timed too); the mesh is also written to `out`."""
+    import open3d as o3d
+
+    from jaxrbf import io
+
+    t0 = time.perf_counter()
+    try:
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        if normals is None:
+            pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_KNN))
+            pc.orient_normals_consistent_tangent_plane(NORMAL_KNN)
+        else:
+            pc.normals = o3d.utility.Vector3dVector(normals)
+        m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=POISSON_DEPTH)
+    except Exception as exc:  # a benchmark row, not a crash
+        error = f"{type(exc).__name__}: {exc}"
+        return dict(ok=False, seconds=time.perf_counter() - t0, error=error)
+    seconds = time.perf_counter() - t0
+    mesh = io.Mesh(np.asarray(m.vertices, np.float64), np.asarray(m.triangles, np.int64))
+    io.write_mesh(out, mesh)
+    return dict(ok=True, seconds=seconds, mesh=mesh)
+
+
+# --- figures ----------------------------------------------------------------------------------
+
+
+def components(mesh) -> int:
+    """Connected components of the faces (joined through shared vertices)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = mesh.faces
+    used, local = np.unique(f, return_inverse=True)
+    local = local.reshape(f.shape)
+    edges = np.concatenate([local[:, [0, 1]], local[:, [1, 2]]])
+    n = len(used)
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    return int(connected_components(graph, directed=False)[0])
+
+
+def against_reference(mesh, ref, n: int, seed: int) -> dict:
+    """Chamfer-L1, NC, precision and recall at THRESHOLD, from one sampling of both surfaces."""
+    from jaxrbf import metrics
+
+    # evaluate() reports the F-score only; precision and recall come from the same comparison.
+    c = metrics._compare(mesh, ref, n, seed)
+    return dict(
+        chamfer=metrics._chamfer(c),
+        nc=metrics._normal_consistency(c),
+        precision=float(np.mean(c["d_pr"] < THRESHOLD)),
+        recall=float(np.mean(c["d_rp"] < THRESHOLD)),
+    )
+
+
+def against_points(mesh, points: np.ndarray, seed: int) -> dict:
+    """Distances from the input points to the surface, and the surface's far share."""
+    from scipy.spatial import cKDTree
+
+    from jaxrbf import metrics
+
+    diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    samples, _ = metrics.sample_surface(mesh, ONE_SIDED_SAMPLES, seed=seed)
+    to_surface = cKDTree(samples).query(points, workers=-1)[0] / diag
+    to_points = cKDTree(points).query(samples, workers=-1)[0] / diag
+    return dict(
+        mean=float(to_surface.mean()),
+        p95=float(np.percentile(to_surface, 95)),
+        far=float(np.mean(to_points > FAR)),
+    )
+
+
+def figures(run: dict, points: np.ndarray, ref, args) -> dict:
+    """The run's timing and error, plus its mesh's figures when it made a (non-empty) mesh."""
+    import jaxrbf
+
+    fig = {k: v for k, v in run.items() if k != "mesh"}
+    mesh = run.get("mesh")
+    if run["ok"] and len(mesh.faces) == 0:
+        fig.update(ok=False, error="the output mesh has no faces")
+    if not fig["ok"]:
+        return fig
+    fig.update(
+        vertices=len(mesh.vertices),
+        faces=len(mesh.faces),
+        components=components(mesh),
+        watertight=bool(jaxrbf.is_watertight(mesh)),
+    )
+    try:
+        if ref is not None:
+            fig.update(against_reference(mesh, ref, args.samples, args.seed + 1))
+        else:
+            fig.update(against_points(mesh, points, args.seed + 1))
+    except jaxrbf.InputError as exc:  # e.g. a mesh of degenerate faces only
+        fig.update(ok=False, error=f"no metrics: {exc}")
+    return fig
+
+
+# --- verdicts ---------------------------------------------------------------------------------
+
+#: (key, label, lower is better, format) of each judged figure.
+REFERENCE_CHECKS = (
+    ("chamfer", "Chamfer", True, ".4%"),
+    ("nc", "NC", False, ".4f"),
+    ("precision", "precision", False, ".2%"),
+)
+ONE_SIDED_CHECKS = (("far", "far share", True, ".2%"), ("mean", "mean distance", True, ".4%"))
+
+
+def verdict(entry: dict) -> tuple[bool, list[str]]:
+    """(pass, reasons) for one input."""
+    j, p = entry["jaxrbf"], entry["poisson"]
+    if not j["ok"]:
+        return False, [f"jaxrbf failed ({j['error']})"]
+    if not p["ok"]:
+        return True, [f"Poisson failed ({p['error']})"]
+    checks = REFERENCE_CHECKS if entry["reference"] else ONE_SIDED_CHECKS
+    reasons = []
+    for key, label, lower, fmt in checks:
+        if (j[key] > p[key]) if lower else (j[key] < p[key]):
+            sign = ">" if lower else "<"
+            reasons.append(f"{label} {j[key]:{fmt}} {sign} {p[key]:{fmt}}")
+    return not reasons, reasons
+
+
+# --- reporting --------------------------------------------------------------------------------
+
+
+def _cells(fig: dict, keys: list[tuple[str, str]]) -> list[str]:
+    if not fig["ok"]:
+        return [f"{fig['seconds']:.1f}", "FAILED"] + [""] * (len(keys) - 1)
+    out = [f"{fig['seconds']:.1f}"]
+    for key, fmt in keys:
+        v = fig[key]
+        out.append("yes" if v is True else "no" if v is False else format(v, fmt))
+    return out
+
+
+def tables(entries: list[dict]) -> str:
+    ref_keys = [
+        ("chamfer", ".4%"),
+        ("nc", ".4f"),
+        ("precision", ".2%"),
+        ("recall", ".2%"),
+        ("components", "d"),
+        ("vertices", ",d"),
+        ("watertight", ""),
+    ]
+    one_keys = [
+        ("mean", ".4%"),
+        ("p95", ".4%"),
+        ("far", ".2%"),
+        ("components", "d"),
+        ("vertices", ",d"),
+        ("watertight", ""),
+    ]
+    blocks = []
+    for with_ref, keys, heads, title in (
+        (
+            True,
+            ref_keys,
+            ["chamfer-L1", "NC", "prec@0.5%", "rec@0.5%", "comps", "verts", "tight"],
+            "with a reference (distances in % of the reference's diagonal)",
+        ),
+        (
+            False,
+            one_keys,
+            ["mean", "p95", "far>1%", "comps", "verts", "tight"],
+            "without a reference (input points -> output surface, % of the input's diagonal; "
+            "far = share of the output surface > 1% from every point)",
+        ),
+    ):
+        rows = []
+        for e in (e for e in entries if e["reference"] == with_ref):
+            for method in ("jaxrbf", "poisson"):
+                label = e["name"] if method == "jaxrbf" else ""
+                name = "jaxrbf" if method == "jaxrbf" else f"poisson{POISSON_DEPTH}"
+                rows.append([label, f"{e['points']:,}", name, *_cells(e[method], keys)])
+        if rows:
+            heads_all = ["input", "points", "method", "s", *heads]
+            blocks.append(f"{title}:\n{format_table(heads_all, rows)}")
+    return "\n\n".join(blocks)
+
+
+# --- driver -----------------------------------------------------------------------------------
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument(
+        "--inputs",
+        nargs="+",
+        metavar="NAME",
+        choices=list(BY_NAME),
+        default=list(BY_NAME),
+        help="a subset of the inputs (see --list; default: all)",
+    )
+    p.add_argument("--list", action="store_true", help="list the inputs and exit")
+    p.add_argument("--seed", type=int, default=0, help="sampling and scanner seed (default 0)")
+    p.add_argument("--samples", type=int, default=200_000, help="metric samples (default 200k)")
+    p.add_argument("--json", type=Path, metavar="PATH", help="also write every figure to PATH")
+    p.add_argument("--keep", type=Path, metavar="DIR", help="keep inputs, outputs and logs in DIR")
+    p.add_argument(
+        "--jaxrbf-args",
+        default="",
+        metavar='"..."',
+        help="extra arguments appended to jaxrbf's command line (default none: the defaults); "
+        'one option alone needs the = form: --jaxrbf-args=--project',
+    )
+    p.add_argument(
+        "--timeout", type=float, default=1800.0, help="seconds per jaxrbf run (default 1800)"
+    )
+    return p.parse_args(argv)
+
+
+def revision() -> str:
+    """The checkout's commit, "-dirty" when its tracked files differ: jaxrbf is installed
+    editable, so its version number alone does not say which code ran."""
+    try:
+        cmd = ["git", "-C", str(REPO_ROOT), "describe", "--always", "--dirty"]
+        return subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def list_inputs() -> None:
+    for inp in INPUTS:
+        present = "" if (DATA_DIR / inp.file).is_file() else "   [missing: not in DATA_DIR]"
+        print(f"{inp.name:16s} {inp.describe()}{present}")
+    print(f"(data: {DATA_DIR})")
+
+
+def run_input(inp: Input, workdir: Path, extra: list[str], args) -> dict:
+    """Both methods on one input, their figures and the verdict (progress on stderr)."""
+    source, points, normals, ref, notes = prepare(inp, workdir, args.seed)
+    print(f"{inp.name}: {len(points):,} points ({inp.describe()})", file=sys.stderr, flush=True)
+    if "scan" in notes:
+        s = notes["scan"]
+        print(
+            f"  scanner: {s['views']} views at elevations {s['elevations_deg']} deg; "
+            f"{s['hits']:,} hits, {s['grazing_dropped']:,} grazing dropped, "
+            f"{s['points']:,} kept; {s['unseen']:.2%} of the surface unseen",
+            file=sys.stderr,
+            flush=True,
+        )
+    log = workdir / f"{inp.name}.jaxrbf.log"
+    j = run_jaxrbf(source, workdir / f"{inp.name}.jaxrbf.ply", log, extra, args.timeout)
+    p = run_poisson(points, normals, workdir / f"{inp.name}.poisson{POISSON_DEPTH}.ply")
+    entry = dict(
+        name=inp.name,
+        kind=inp.kind,
+        file=inp.file,
+        points=len(points),
+        reference=ref is not None,
+        jaxrbf=figures(j, points, ref, args),
+        poisson=figures(p, points, ref, args),
+        **notes,
+    )
+    entry["pass"], entry["reasons"] = verdict(entry)
+    for method in ("jaxrbf", "poisson"):
+        f = entry[method]
+        status = "ok" if f["ok"] else f["error"]
+        print(f"  {method}: {f['seconds']:.1f} s, {status}", file=sys.stderr, flush=True)
+    return entry
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    if args.list:
+        list_inputs()
+        return 0
+    ensure_jaxrbf_importable()
+    try:
+        import open3d as o3d
+    except Exception as exc:  # ImportError, or OSError for a missing libusb
+        sys.exit(f"error: this benchmark needs open3d ({exc}); pip install -e .[bench]")
+    import jaxrbf
+
+    extra = shlex.split(args.jaxrbf_args)
+    machine = machine_info()
+    machine["loadavg_at_start"] = [round(x, 2) for x in os.getloadavg()]
+    machine["jaxrbf"] = f"{jaxrbf.__version__} (git {revision()})"
+    print(
+        f"machine: {machine.get('cpu', '?')}, {machine['cpu_count']} CPUs, load "
+        f"{machine['loadavg_at_start']}, Python {machine['python']}; jaxrbf {machine['jaxrbf']}, "
+        f"open3d {o3d.__version__}",
+        flush=True,
+    )
+    print(
+        f"jaxrbf: `{' '.join(['jaxrbf', 'reconstruct', 'IN', '-o', 'OUT.ply', *extra])}`; "
+        f"Poisson: depth {POISSON_DEPTH}, no trimming",
+        flush=True,
+    )
+
+    names = list(dict.fromkeys(args.inputs))
+    present = {n: (DATA_DIR / BY_NAME[n].file).is_file() for n in names}
+    skipped = [(n, f"{BY_NAME[n].file} missing") for n in names if not present[n]]
+    todo = [BY_NAME[n] for n in names if present[n]]
+    for name, why in skipped:
+        print(f"skipping {name}: {why} (looked in {DATA_DIR})", flush=True)
+
+    if args.keep:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        workdir, cleanup = args.keep, None
+    else:
+        cleanup = tempfile.TemporaryDirectory(prefix="wild-")
+        workdir = Path(cleanup.name)
+
+    entries = []
+    try:
+        for inp in todo:
+            entries.append(run_input(inp, workdir, extra, args))
+    finally:
+        if cleanup is not None:
+            cleanup.cleanup()
+
+    print()
+    print(tables(entries) or "no input ran")
+    print("\nverdicts:")
+    for e in entries:
+        why = f" ({'; '.join(e['reasons'])})" if e["reasons"] else ""
+        print(f"  {e['name']}: {'PASS' if e['pass'] else 'FAIL'}{why}")
+    passed = [e["name"] for e in entries if e["pass"]]
+    failed = [e["name"] for e in entries if not e["pass"]]
+    print(
+        f"summary: {len(passed)}/{len(entries)} inputs PASS"
+        + (f"; FAIL: {', '.join(failed)}" if failed else "")
+        + (f"; skipped: {', '.join(n for n, _ in skipped)}" if skipped else "; skipped: none")
+    )
+    if args.keep:
+        print(f"inputs, outputs and jaxrbf logs kept in {workdir}")
+    if args.json:
+        args.json.write_text(
+            json.dumps(
+                dict(
+                    machine=machine,
+                    jaxrbf_args=extra,
+                    samples=args.samples,
+                    seed=args.seed,
+                    skipped=dict(skipped),
+                    inputs=entries,
+                ),
+                indent=2,
+            )
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

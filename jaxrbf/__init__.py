@@ -27,6 +27,8 @@ from ._clean import OutlierReport as OutlierReport
 from ._clean import boundary_loops as boundary_loops
 from ._clean import is_watertight as is_watertight
 from ._clean import remove_outliers as remove_outliers
+from ._accounts import AccountReport as AccountReport
+from ._accounts import check_output as check_output
 from ._constraints import Constraints as Constraints
 from ._constraints import offset_caps as offset_caps
 from ._constraints import surface_constraints as surface_constraints
@@ -51,7 +53,9 @@ from ._polygonize import polygonize as polygonize
 from ._project import project as project
 from ._reconstruct import constraints_from as constraints_from
 from ._reconstruct import example as example
+from ._reconstruct import default_resolution as default_resolution
 from ._reconstruct import fit_surface as fit_surface
+from ._reconstruct import fit_surface_samples as fit_surface_samples
 from ._reconstruct import reconstruct as reconstruct
 from ._reconstruct import surface_from as surface_from
 from ._serialize import load as load
@@ -61,6 +65,9 @@ from ._tune import default_offset as default_offset
 from ._tune import default_radius as default_radius
 from ._tune import grid_search as grid_search
 from ._tune import tune as tune
+from ._winding import VolumeConstraints as VolumeConstraints
+from ._winding import volume_constraints as volume_constraints
+from ._winding import winding_number as winding_number
 from .features import Features as Features
 from .features import principal_curvatures as principal_curvatures
 from .features import sharp_features as sharp_features

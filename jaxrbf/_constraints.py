@@ -51,6 +51,20 @@ def checked_samples(points, normals) -> tuple[np.ndarray, np.ndarray]:
     return p, _unit_normals(normals, len(p), p.shape[1])
 
 
+def duplicate_pairs_checked(p: np.ndarray, nrm: np.ndarray, tol: float) -> np.ndarray:
+    """The pairs of points closer than `tol` (`duplicate_pairs`), refused when a pair's unit
+    normals disagree: one place cannot be both inside and outside."""
+    pairs = duplicate_pairs(p, tol)
+    clash = pairs[np.sum(nrm[pairs[:, 0]] * nrm[pairs[:, 1]], axis=1) < 0.5]
+    if len(clash):
+        i, j = (int(k) for k in clash[0])
+        raise InputError(
+            f"points {i} and {j} are identical but their normals disagree ({len(clash)} such "
+            "pairs): one place cannot be both inside and outside; remove one of each pair"
+        )
+    return pairs
+
+
 def _validated_offsets(p: np.ndarray, n: np.ndarray, offset: float, sign: float) -> np.ndarray:
     """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
     off-surface point is its own origin; NaN marks points that never get there (dropped)."""
@@ -127,14 +141,7 @@ class Constraints(eqx.Module):
         offset = float(offset)
         if not (np.isfinite(offset) and offset > 0):
             raise InputError(f"`offset` must be a positive distance, got {offset!r}")
-        pairs = duplicate_pairs(p, merge_tol * diag)
-        clash = pairs[np.sum(nrm[pairs[:, 0]] * nrm[pairs[:, 1]], axis=1) < 0.5]
-        if len(clash):
-            i, j = (int(k) for k in clash[0])
-            raise InputError(
-                f"points {i} and {j} are identical but their normals disagree ({len(clash)} such "
-                "pairs): one place cannot be both inside and outside; remove one of each pair"
-            )
+        pairs = duplicate_pairs_checked(p, nrm, merge_tol * diag)
         drop = find_duplicates(p, merge_tol * diag, pairs)
         p, nrm = p[~drop], nrm[~drop]
         parts_p, parts_v = [p], [np.zeros(len(p))]

@@ -204,6 +204,13 @@ def _is_noisy(data, name: str, verbose: bool) -> bool:
     """Whether the point cloud `data` scatters across its surface (`jaxrbf.estimate_noise`)."""
     from ._noise import estimate_noise
 
+    from ._constraints import MERGE_TOL, checked_samples, duplicate_pairs_checked
+
+    # the checks a fit makes anyway, first: their messages name the real problem
+    if data.normals is not None:
+        p, nrm = checked_samples(data.points, data.normals)
+        duplicate_pairs_checked(p, nrm, MERGE_TOL * diagonal(p))
+    check_not_flat(data.points, f"points of {name}")
     report = estimate_noise(data.points, data.normals)
     if verbose:
         log(f"{name}: {report.summary()}")
@@ -576,8 +583,7 @@ def mesh_fit(
     against the samples before it is returned (`jaxrbf._accounts.check_output`): an output
     that loses part of its input, or that is mostly surface far from every sample, is a
     `SolveError` that says what went wrong, never a result."""
-    from ._accounts import check_output
-    from ._errors import SolveError
+    from ._accounts import check_curves, check_output
     from ._polygonize import contour
 
     if resolution is None:
@@ -592,6 +598,7 @@ def mesh_fit(
         out = contour(model, resolution=resolution, progress=progress)
         if verbose:
             log(f"{len(out)} curves in {time.perf_counter() - t0:.1f} s")
+        _accounted(check_curves(out, samples), verbose)
         return out
     mesh = mesh_closed(
         model,
@@ -606,9 +613,15 @@ def mesh_fit(
             f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in "
             f"{time.perf_counter() - t0:.1f} s"
         )
-    report = check_output(mesh.vertices, mesh.faces, samples)
+    _accounted(check_output(mesh.vertices, mesh.faces, samples), verbose)
+    return mesh
+
+
+def _accounted(report, verbose: bool) -> None:
+    """Say what `report` (`check_output` / `check_curves`) found; a failure is a `SolveError`."""
+    from ._errors import SolveError
+
     if verbose or not report.ok:
         log(report.summary())
     if not report.ok:
         raise SolveError(f"the output does not account for its input: {report.problem}")
-    return mesh

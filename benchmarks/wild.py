@@ -506,7 +506,7 @@ def parse_args(argv=None):
         default="",
         metavar='"..."',
         help="extra arguments appended to jaxrbf's command line (default none: the defaults); "
-        'one option alone needs the = form: --jaxrbf-args=--project',
+        "one option alone needs the = form: --jaxrbf-args=--project",
     )
     p.add_argument(
         "--timeout", type=float, default=1800.0, help="seconds per jaxrbf run (default 1800)"

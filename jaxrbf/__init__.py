@@ -22,13 +22,13 @@ from . import kernels as kernels
 from . import metrics as metrics
 from . import objectives as objectives
 from . import plot as plot
+from ._accounts import AccountReport as AccountReport
+from ._accounts import check_output as check_output
 from ._background import surface_background as surface_background
 from ._clean import OutlierReport as OutlierReport
 from ._clean import boundary_loops as boundary_loops
 from ._clean import is_watertight as is_watertight
 from ._clean import remove_outliers as remove_outliers
-from ._accounts import AccountReport as AccountReport
-from ._accounts import check_output as check_output
 from ._constraints import Constraints as Constraints
 from ._constraints import offset_caps as offset_caps
 from ._constraints import surface_constraints as surface_constraints
@@ -52,8 +52,8 @@ from ._polygonize import contour as contour
 from ._polygonize import polygonize as polygonize
 from ._project import project as project
 from ._reconstruct import constraints_from as constraints_from
-from ._reconstruct import example as example
 from ._reconstruct import default_resolution as default_resolution
+from ._reconstruct import example as example
 from ._reconstruct import fit_surface as fit_surface
 from ._reconstruct import fit_surface_samples as fit_surface_samples
 from ._reconstruct import reconstruct as reconstruct

@@ -121,14 +121,11 @@ class SmoothingReport:
                 f"time(s) up to {self.grid[-1]:.1e}"
             )
         if self.at_top:
-            note += (
-                "; the choice is the top of the grid"
-                + (
-                    ", where the fit of every crop is its polynomial: the input is too noisy for "
-                    "the held-out error to prefer any detail"
-                    if self.saturated
-                    else " (give a larger grid, or `smoothing` by hand)"
-                )
+            note += "; the choice is the top of the grid" + (
+                ", where the fit of every crop is its polynomial: the input is too noisy for "
+                "the held-out error to prefer any detail"
+                if self.saturated
+                else " (give a larger grid, or `smoothing` by hand)"
             )
         return note
 

@@ -49,6 +49,7 @@ from ._errors import InputError, SolveError
 from ._model import AbstractModel, _traced, kernel_block, poly_basis
 from ._schwarz import _kd_leaves
 from .kernels import AbstractKernel, _safe_sqrt
+from .objectives import point_spacing
 
 #: Constraints per k-d leaf. A patch's ball then holds about 4-5x as many (it reaches into the
 #: neighbouring leaves), which is what the local solve costs: O(m^3) per patch.
@@ -592,15 +593,11 @@ BASE_VOLUME = 3000
 def _level_volume(volume, xw: np.ndarray, h: np.ndarray, *, base: bool, seed: int):
     """The volume constraints (points, values) of a level whose constraints are `xw`, `h` (see
     `fit_partition`); empty arrays when there are none."""
-    from scipy.spatial import cKDTree
-
     dim = xw.shape[1]
     none = np.zeros((0, dim)), np.zeros(0)
     if volume is None or len(volume[1]) == 0:
         return none
-    on = xw[h == 0] if np.sum(h == 0) >= 2 else xw
-    dist, _ = cKDTree(on).query(on, k=2, workers=-1)
-    spacing = float(np.median(dist[:, 1]))
+    spacing = point_spacing(xw[h == 0] if np.sum(h == 0) >= 2 else xw)
     far = np.abs(volume[1])
     keep = far >= VOLUME_NEAR * spacing
     if not base:
@@ -640,26 +637,10 @@ def coarse_constraints(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndar
     """Constraints of a coarse level: `points` and validated off-surface points at
     `COARSE_OFFSET_SPACINGS` median spacings of `points`, shrunk where they would come nearer
     another part of the surface (the validation of `Constraints.from_points`)."""
-    from scipy.spatial import cKDTree
-
     from ._constraints import Constraints
 
-    dist, _ = cKDTree(points).query(points, k=2, workers=-1)
-    spacing = float(np.median(dist[:, 1]))
-    c = Constraints.from_points(points, normals, COARSE_OFFSET_SPACINGS * spacing)
+    c = Constraints.from_points(points, normals, COARSE_OFFSET_SPACINGS * point_spacing(points))
     return np.asarray(c.points), np.asarray(c.values)
-
-
-def constraint_residual(
-    model: AbstractModel, xw: np.ndarray, h: np.ndarray, sample: int = 50_000, seed: int = 0
-) -> float:
-    """max |f(x_i) - h_i| / max |h| over the constraints (a random sample of `sample` of them)."""
-    n = len(xw)
-    if n > sample:
-        idx = np.random.default_rng(seed).choice(n, sample, replace=False)
-        xw, h = xw[idx], h[idx]
-    err = np.abs(np.asarray(model(jnp.asarray(xw))) - h)
-    return float(err.max() / max(np.abs(h).max(), 1e-300))
 
 
 def check_memory(n: int, dim: int, leaf: int = LEAF) -> None:

@@ -17,6 +17,7 @@ from ._errors import InputError
 from ._fit import choose_method, fit
 from ._model import AbstractModel, n_poly
 from ._prepare import auto_flag, check_not_flat, diagonal
+from .objectives import point_spacing
 
 #: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
 #: 2-core CPU. Larger inputs are subsampled to this unless `points` says otherwise.
@@ -52,10 +53,7 @@ def default_kernel(dim: int, method: str, n_samples: int) -> str:
 def partition_offset(surface: np.ndarray) -> float:
     """`PARTITION_OFFSET_SPACINGS` median nearest-neighbour spacings of `surface`, as a fraction of
     its diagonal."""
-    from scipy.spatial import cKDTree
-
-    dist, _ = cKDTree(surface).query(surface, k=2, workers=-1)
-    return PARTITION_OFFSET_SPACINGS * float(np.median(dist[:, 1])) / diagonal(surface)
+    return PARTITION_OFFSET_SPACINGS * point_spacing(surface) / diagonal(surface)
 
 
 def example(name: str = "bunny") -> tuple[np.ndarray, np.ndarray]:
@@ -187,7 +185,9 @@ def _surface(
         # when it is noisy.
         noisy = _is_noisy(data, name, verbose)
         remove_outliers = noisy or data.normals is None
-    data = _clean_cloud(data, name, mode, auto_flag(remove_outliers, "remove_outliers", False), verbose)
+    data = _clean_cloud(
+        data, name, mode, auto_flag(remove_outliers, "remove_outliers", False), verbose
+    )
     check_not_flat(data.points, f"points of {name}")
     if points is None and subsample and len(data.points) > DEFAULT_POINTS:
         points = DEFAULT_POINTS
@@ -206,17 +206,14 @@ SPARSE = 10_000
 
 def _is_noisy(data, name: str, verbose: bool) -> bool:
     """Whether the point cloud `data` scatters across its surface (`jaxrbf.estimate_noise`)."""
-    from ._noise import estimate_noise
-
     from ._constraints import MERGE_TOL, checked_samples, duplicate_pairs_checked
+    from ._noise import NOISY_SPACING, estimate_noise
 
     # the checks a fit makes anyway, first: their messages name the real problem
     if data.normals is not None:
         p, nrm = checked_samples(data.points, data.normals)
         duplicate_pairs_checked(p, nrm, MERGE_TOL * diagonal(p))
     check_not_flat(data.points, f"points of {name}")
-    from ._noise import NOISY_SPACING
-
     # Clean samples leave a quadric residual that grows with the spacing (as spacing x
     # curvature): the bundled 4,000-point bunny reads 0.063 spacings, clean 4k-point suzanne
     # 0.084, against at most 0.047 for clean clouds of 10k points and more. Below `SPARSE` points
@@ -476,14 +473,6 @@ def fit_surface_samples(
     return model, p, n
 
 
-def median_spacing(points: np.ndarray) -> float:
-    """The median distance from each of `points` to its nearest neighbour."""
-    from scipy.spatial import cKDTree
-
-    dist, _ = cKDTree(points).query(points, k=2, workers=-1)
-    return float(np.median(dist[:, 1]))
-
-
 #: The default meshing grid follows the samples' density: `RESOLUTION_AT` samples along the
 #: longest side for `SPACINGS_AT` median point spacings along it, growing as the
 #: `RESOLUTION_POWER` of the spacings, within `RESOLUTION_RANGE` (3-D). Measured on the bunny
@@ -500,7 +489,7 @@ def default_resolution(points: np.ndarray) -> int:
     """The meshing grid (samples along the longest side) for surface samples `points` (see
     `RESOLUTION_AT`): a multiple of 16."""
     side = float(np.max(np.ptp(points, axis=0)))
-    spacings = side / max(median_spacing(points), 1e-12 * side)
+    spacings = side / max(point_spacing(points), 1e-12 * side)
     if points.shape[1] == 2:
         r, (lo, hi) = RESOLUTION_2D * spacings, RESOLUTION_2D_RANGE
     else:
@@ -538,7 +527,11 @@ def mesh_closed(
         return mesh
     pad = WIDE_PADDING * float(np.max(hi - lo)) / 1.1
     wide = polygonize(
-        model, resolution=resolution, project=project, progress=progress, bounds=(lo - pad, hi + pad)
+        model,
+        resolution=resolution,
+        project=project,
+        progress=progress,
+        bounds=(lo - pad, hi + pad),
     )
     if is_watertight(wide):
         if verbose:

@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 
 from ._errors import InputError
 from ._schwarz import _kd_leaves
+from .objectives import point_spacing
 
 #: Samples per leaf of the evaluation tree (about), and leaves per group.
 LEAF_SIZE = 24
@@ -151,7 +152,9 @@ def _block(q, tree: WindingTree, group_k: int, leaf_k: int):
     leaf = jnp.take_along_axis(li, pick, axis=1)  # (B, leaf_k)
     dp = tree.points[leaf] - q[:, None, None]  # (B, leaf_k, L, 3)
     m = tree.moments[leaf] * l_ok[..., None, None]
-    w += _dipoles(dp.reshape(b, -1, 3), m.reshape(b, -1, 3), jnp.ones(dp.shape[:-1], bool).reshape(b, -1))
+    w += _dipoles(
+        dp.reshape(b, -1, 3), m.reshape(b, -1, 3), jnp.ones(dp.shape[:-1], bool).reshape(b, -1)
+    )
     return w, jnp.max(jnp.sum(near_g, 1)), jnp.max(jnp.sum(near_l, 1))
 
 
@@ -272,8 +275,7 @@ def volume_constraints(
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
     tree = cKDTree(p)
     if spacing is None:
-        dist, _ = tree.query(p, k=2, workers=-1)
-        spacing = float(np.median(dist[:, 1]))
+        spacing = point_spacing(p)
     finest = PROBE_CELL_SPACINGS * spacing
     probes, dist, cell = probe_points(p, finest, tree)
     if len(probes) > MAX_PROBES:  # the finest shell holds most: its count goes as 1 / h^2

@@ -19,6 +19,7 @@ from ._prepare import (
     sample_faces,
     vertex_normals,
 )
+from ._util import log as log  # re-exported: the package's one stderr logger
 from .io import as_points
 
 #: Default offset d as a fraction of the bounding-box diagonal.
@@ -362,10 +363,6 @@ def surface_constraints(points, normals, offset, caps=None) -> Constraints:
         n_surface=int(p.shape[0]),
         n_dropped=2 * int(p.shape[0]) - (len(parts_v[1]) + len(parts_v[2])),
     )
-
-
-def log(msg: str) -> None:
-    print(f"jaxrbf: {msg}", file=sys.stderr, flush=True)
 
 
 def progress_bar(total: int, desc: str, unit: str, show: bool | None):

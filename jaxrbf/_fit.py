@@ -15,6 +15,7 @@ from ._model import AbstractModel, RBFModel, n_poly
 from ._prepare import find_duplicates, unit_box_transform
 from ._schwarz import decompose
 from ._solve import SOLVERS, solve_system
+from ._util import available_memory as _available_memory
 from .io import as_points
 from .kernels import AbstractKernel, make_kernel
 
@@ -29,17 +30,6 @@ METHODS = ("auto", "dense", "partition", "global")
 #: `method="auto"` solves one global system up to this many unknowns (a few seconds with CG),
 #: and blends local fits (partition of unity) beyond.
 AUTO_DENSE_LIMIT = 15_000
-
-
-def _available_memory() -> int | None:
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        return None
-    return None
 
 
 def _check_size(n: int, solver: str) -> None:

@@ -15,10 +15,12 @@ only once it is complete, and an existing file is left untouched when writing fa
 
 from __future__ import annotations
 
+import math
 import os
 import secrets
 import warnings
 import zipfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
@@ -27,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import InputError
+from ._util import check_memory, check_scale, log, size_text
 
 __all__ = [
     "Mesh",
@@ -153,6 +156,8 @@ def as_points(array, name: str = "points", dims: tuple[int, ...] = (2, 3)) -> np
     **Raises:** `InputError` when it is not numeric, not 2-D, has a wrong d, no rows, or holds
     NaN or infinite values.
     """
+    if np.iscomplexobj(array):
+        raise InputError(f"`{name}` holds complex numbers; coordinates must be real")
     try:
         a = np.asarray(array, dtype=np.float64)
     except (TypeError, ValueError) as e:
@@ -176,6 +181,7 @@ def as_points(array, name: str = "points", dims: tuple[int, ...] = (2, 3)) -> np
             f"`{name}` has {bad} row{'s' if bad != 1 else ''} with NaN or infinite values; "
             "remove or repair them"
         )
+    check_scale(a, f"`{name}`")
     return np.ascontiguousarray(a)
 
 
@@ -223,9 +229,23 @@ def _choices(items) -> str:
 
 
 def _short(e: BaseException, limit: int = 160) -> str:
-    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-    msg = f"{type(e).__name__}: {msg}" if msg else type(e).__name__
+    """The first line of an exception's message, without its class name (which means nothing
+    to the user); a few words for an exception without a message."""
+    text = str(e).strip()
+    msg = text.splitlines()[0].rstrip(".") if text else "the data could not be decoded"
     return msg if len(msg) <= limit else msg[: limit - 3] + "..."
+
+
+def _plural(n: int, word: str, plural: str | None = None) -> str:
+    return f"{n:,} {word if n == 1 else (plural or word + 's')}"
+
+
+def _items(n: int, element: str) -> str:
+    """`n` items of the PLY element `element`, in words: '3 vertices', '1 triangle strip'."""
+    words = {"vertex": ("vertex", "vertices"), "face": ("face", "faces")}
+    words["tristrips"] = ("triangle strip", "triangle strips")
+    word, plural = words.get(element, (f"'{element}' item", f"'{element}' items"))
+    return _plural(n, word, plural)
 
 
 # --------------------------------------------------------------------------- reading helpers
@@ -255,6 +275,8 @@ def _check_file(path, allowed) -> tuple[str, str]:
                 f"one of {', '.join(allowed)} (read_input reads any supported file)"
             )
         raise _unknown(p, ext, allowed)
+    if not os.access(p, os.R_OK):
+        raise InputError(f"input file '{p}' cannot be read (permission denied)")
     if os.path.getsize(p) == 0:
         raise _empty(p)
     return p, ext
@@ -271,28 +293,341 @@ def _check_finite(p: str, a: np.ndarray) -> None:
             f"'{p}' has {bad} {'vertex' if bad == 1 else 'vertices'} with NaN or infinite "
             "coordinates; remove or repair them"
         )
+    check_scale(a, f"'{p}'")
 
 
-def _ply_header(p: str) -> dict[str, int]:
-    """Element counts declared in a PLY header, e.g. {'vertex': 100, 'face': 196}."""
-    counts: dict[str, int] = {}
+def _binary(p: str, head: bytes) -> bool:
+    """Whether the first bytes of a file that should be text look like binary data."""
+    return b"\0" in head
+
+
+# --------------------------------------------------------------------------- PLY
+
+
+#: Bytes of each PLY scalar type.
+_PLY_TYPES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
+_PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
+#: The PLY elements and properties jaxrbf reads; anything else is named on stderr.
+_PLY_USED = {
+    "vertex": ("x", "y", "z", "nx", "ny", "nz"),
+    "face": ("vertex_indices", "vertex_index"),
+    "tristrips": ("vertex_indices", "vertex_index"),
+}
+
+
+@dataclass(frozen=True)
+class _PlyElement:
+    name: str
+    count: int
+    #: (name, scalar type, list-length type or None) of each property.
+    props: tuple[tuple[str, str, str | None], ...]
+
+
+@dataclass(frozen=True)
+class _PlyHeader:
+    format: str
+    elements: tuple[_PlyElement, ...]
+    size: int  # bytes of the header
+
+    def count(self, name: str) -> int:
+        return sum(e.count for e in self.elements if e.name == name)
+
+
+def _ply_header(p: str) -> _PlyHeader:
+    """The PLY header of `p`, parsed and checked against the bytes that follow it (before any
+    element is read, so that a header's claims are never allocated on trust)."""
+
+    def bad(lineno: int, what: str) -> InputError:
+        return InputError(f"'{p}' could not be read as PLY: header line {lineno}: {what}")
+
+    fmt = None
+    elements: list[tuple[str, int, list]] = []
+    with open(p, "rb") as fh:
+        if fh.readline(16).strip() != b"ply":
+            raise InputError(f"'{p}' is not a PLY file: it does not start with 'ply'")
+        for lineno in range(2, 100_002):
+            line = fh.readline(4096)
+            if not line:
+                raise InputError(
+                    f"'{p}' could not be read as PLY: its header never ends (no 'end_header' "
+                    "line); the file is truncated"
+                )
+            words = line.decode("ascii", "replace").split()
+            key = words[0] if words else ""
+            if key == "end_header":
+                break
+            if key == "format":
+                if len(words) < 2 or words[1] not in _PLY_FORMATS:
+                    raise bad(lineno, f"unknown format {' '.join(words[1:])!r}")
+                fmt = words[1]
+            elif key == "element":
+                if len(words) != 3 or not words[2].isdigit():
+                    raise bad(lineno, f"expected 'element NAME COUNT', got {' '.join(words)!r}")
+                elements.append((words[1], int(words[2]), []))
+            elif key == "property":
+                if not elements:
+                    raise bad(lineno, "a property before any element")
+                if len(words) == 5 and words[1] == "list":
+                    if words[2] not in _PLY_TYPES or words[3] not in _PLY_TYPES:
+                        raise bad(lineno, f"unknown list types {words[2]!r}, {words[3]!r}")
+                    elements[-1][2].append((words[4], words[3], words[2]))
+                elif len(words) == 3 and words[1] in _PLY_TYPES:
+                    elements[-1][2].append((words[2], words[1], None))
+                else:
+                    raise bad(lineno, f"expected 'property TYPE NAME', got {' '.join(words)!r}")
+        else:
+            raise InputError(f"'{p}' could not be read as PLY: its header never ends")
+        size = fh.tell()
+    if fmt is None:
+        raise InputError(f"'{p}' could not be read as PLY: its header has no 'format' line")
+    header = _PlyHeader(fmt, tuple(_PlyElement(n, c, tuple(pr)) for n, c, pr in elements), size)
+    _check_ply_sizes(p, header)
+    return header
+
+
+def _ply_counts(header: _PlyHeader) -> str:
+    return ", ".join(_items(e.count, e.name) for e in header.elements)
+
+
+def _check_ply_sizes(p: str, header: _PlyHeader) -> None:
+    """Refuse a header whose element counts the bytes after it cannot hold (at least one byte
+    and a separator per ASCII value, the exact size of each binary scalar and list length),
+    or whose elements would not fit in memory."""
+    present = os.path.getsize(p) - header.size
+    need = 0
+    memory = 0
+    for e in header.elements:
+        if header.format == "ascii":
+            need += e.count * 2 * len(e.props)
+        else:
+            need += e.count * sum(_PLY_TYPES[lt or t] for _, t, lt in e.props)
+        memory += e.count * sum(8 if lt is None else 8 * 4 for _, _, lt in e.props)
+    if need > present:
+        raise InputError(
+            f"'{p}' could not be read as PLY: its header declares {_ply_counts(header)}, which "
+            f"need at least {need:,} bytes, but only {present:,} follow it; the file is truncated"
+        )
+    check_memory(2 * memory, f"reading '{p}' ({_ply_counts(header)})", "use a smaller file")
+
+
+def _ply_unused(p: str, header: _PlyHeader) -> None:
+    """Name on stderr the elements and properties of `p` that jaxrbf does not use."""
+    unused = []
+    for e in header.elements:
+        if e.name not in _PLY_USED:
+            unused.append(f"element '{e.name}' ({_plural(e.count, 'item')})")
+            continue
+        extra = [name for name, _, _ in e.props if name not in _PLY_USED[e.name]]
+        if extra:
+            unused.append(f"{e.name} properties {', '.join(extra)}")
+    if unused:
+        log(f"'{p}': not used: {'; '.join(unused)}")
+
+
+def _strip_triangles(strip: np.ndarray) -> np.ndarray:
+    """The triangles of one PLY triangle strip (-1 restarts the strip; every other triangle's
+    winding is reversed, so that all face the same way)."""
+    out = []
+    strip = np.asarray(strip, dtype=np.int64).reshape(-1)
+    for run in np.split(strip, np.flatnonzero(strip < 0)):
+        run = run[run >= 0]
+        if len(run) < 3:
+            continue
+        tri = np.stack([run[:-2], run[1:-1], run[2:]], axis=1)
+        tri[1::2] = tri[1::2, [1, 0, 2]]
+        out.append(tri)
+    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+def _ply_lists(data, key: str):
+    """The lists of property `key` of a PLY element as trimesh reads them: rows of a 2-D array,
+    or an object array of 1-D arrays."""
+    a = data.get(key) if isinstance(data, dict) else None
+    if a is None and data is not None and getattr(data, "dtype", None) is not None:
+        a = data[key] if data.dtype.names and key in data.dtype.names else None
+    return [] if a is None else list(a)
+
+
+def _ply_raw_length(element) -> int | None:
+    """How many items of a raw trimesh PLY element were read (None: unknown)."""
+    data = element.get("data")
+    if isinstance(data, dict):
+        lengths = [len(np.asarray(v)) for v in data.values()]
+        return min(lengths) if lengths else 0
+    if data is None:
+        return 0
+    return len(data) if hasattr(data, "__len__") else None
+
+
+def _read_ply(p: str):
+    """(vertices, faces or None, vertex properties) of a PLY file: faces from `face` (polygons
+    fan-triangulated by trimesh) and from `tristrips`; every element's count checked."""
+    import trimesh
+
+    header = _ply_header(p)
+    vertex = [e for e in header.elements if e.name == "vertex"]
+    if not vertex or not {"x", "y", "z"} <= {n for n, _, _ in vertex[0].props}:
+        raise InputError(
+            f"'{p}' could not be read as PLY: it has no vertex element with x, y and z properties"
+        )
+    if header.count("vertex") == 0:
+        raise _empty(p)
     try:
-        with open(p, "rb") as fh:
-            first = fh.readline().strip()
-            if first != b"ply":
-                raise InputError(f"'{p}' could not be read as PLY: it does not start with 'ply'")
-            for _ in range(10_000):
-                line = fh.readline()
-                if not line:
-                    raise InputError(f"'{p}' could not be read as PLY: the header never ends")
-                words = line.split()
-                if words[:1] == [b"end_header"]:
-                    return counts
-                if words[:1] == [b"element"] and len(words) >= 3:
-                    counts[words[1].decode("ascii", "replace")] = int(words[2])
-    except (OSError, ValueError) as e:
-        raise InputError(f"'{p}' could not be read as PLY: {_short(e)}") from e
-    raise InputError(f"'{p}' could not be read as PLY: the header never ends")
+        g = _trimesh_load(p, ".ply")
+    except InputError as e:
+        if "unexpected length" in str(e):
+            raise InputError(
+                f"'{p}' could not be read as PLY: its data do not match its header "
+                f"({_ply_counts(header)}): the file is truncated, has extra bytes at the end, "
+                "or holds binary lists of varying length (mixed polygons or several triangle "
+                "strips), which the PLY reader (trimesh) cannot read; save it as ASCII PLY"
+            ) from e
+        raise
+    raw = {}
+    for item in [g] + (list(g.geometry.values()) if isinstance(g, trimesh.Scene) else []):
+        meta = getattr(item, "metadata", {}) or {}
+        if isinstance(meta.get("_ply_raw"), dict):
+            raw = meta["_ply_raw"]
+            break
+    for e in header.elements:
+        got = _ply_raw_length(raw[e.name]) if isinstance(raw.get(e.name), dict) else None
+        if got is not None and got != e.count:
+            raise InputError(
+                f"'{p}' could not be read as PLY: its header declares "
+                f"{_items(e.count, e.name)} but the file holds {got:,}; it is truncated"
+            )
+    data = raw.get("vertex", {}).get("data")
+    props: dict[str, np.ndarray] = {}
+    if isinstance(data, dict):
+        props = {k: np.asarray(v).reshape(-1) for k, v in data.items() if np.asarray(v).ndim <= 2}
+    elif data is not None and getattr(data, "dtype", None) is not None and data.dtype.names:
+        props = {k: np.asarray(data[k]).reshape(-1) for k in data.dtype.names}
+    try:
+        vertices = np.stack([props["x"], props["y"], props["z"]], axis=1).astype(np.float64)
+    except (KeyError, ValueError) as e:
+        raise InputError(
+            f"'{p}' could not be read as PLY: its vertex coordinates are unreadable"
+        ) from e
+    faces = None
+    if isinstance(g, trimesh.Trimesh) and len(g.faces):
+        faces = np.asarray(g.faces, dtype=np.int64)
+    elif isinstance(g, trimesh.Scene):
+        meshes = [m for m in g.dump() if isinstance(m, trimesh.Trimesh) and len(m.faces)]
+        if len(meshes) == 1 and len(meshes[0].vertices) == len(vertices):
+            faces = np.asarray(meshes[0].faces, dtype=np.int64)
+    strips = raw.get("tristrips", {}).get("data")
+    if strips is not None:
+        key = (
+            "vertex_indices"
+            if "vertex_indices" in (strips if isinstance(strips, dict) else {})
+            else "vertex_index"
+        )
+        tri = [_strip_triangles(s) for s in _ply_lists(strips, key)]
+        tri = [t for t in tri if len(t)]
+        if tri:
+            faces = np.concatenate(([faces] if faces is not None else []) + tri)
+    _ply_unused(p, header)
+    return vertices, faces, props
+
+
+# --------------------------------------------------------------------------- STL, OFF, OBJ
+
+
+def _check_stl(p: str) -> bool:
+    """Check an STL file's size against its header before it is read; True for binary STL."""
+    size = os.path.getsize(p)
+    with open(p, "rb") as fh:
+        head = fh.read(84)
+    if len(head) == 84:
+        n = int.from_bytes(head[80:84], "little")
+        if size == 84 + 50 * n:
+            if n == 0:
+                raise InputError(f"'{p}' holds no triangles (its binary STL header says 0)")
+            return True
+    else:
+        n = None
+    if head.lstrip()[:5].lower() == b"solid" and not _binary(p, head[:80]):
+        return False  # ASCII STL: checked once read
+    if n is None:
+        raise InputError(
+            f"'{p}' is not an STL file: it is too short ({size:,} bytes) for a binary STL "
+            "(84-byte header) and does not start with 'solid' (ASCII STL)"
+        )
+    need = 84 + 50 * n
+    if need > size:
+        raise InputError(
+            f"'{p}' could not be read as STL: its binary header declares "
+            f"{_plural(n, 'triangle')}, which need {need:,} bytes, but the file has {size:,}; it "
+            "is truncated"
+        )
+    raise InputError(
+        f"'{p}' is not a valid binary STL file: its header declares {_plural(n, 'triangle')} "
+        f"({need:,} bytes) but the file has {size:,} bytes"
+    )
+
+
+def _check_off(p: str) -> None:
+    """Check an OFF file's header and its vertex and face lines (1-based line numbers) before
+    trimesh reads it: the counts must be numbers, and the lines they announce must be there."""
+
+    def bad(lineno: int, what: str) -> InputError:
+        return InputError(f"'{p}' could not be read as OFF: line {lineno}: {what}")
+
+    with open(p, "rb") as fh:
+        head = fh.read(4096)
+    if _binary(p, head):
+        raise InputError(f"'{p}' is not a text OFF file: it holds binary data")
+    lines = []  # (line number, words) of the lines that hold data
+    with open(p, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            words = line.split("#", 1)[0].split()
+            if words:
+                lines.append((lineno, words))
+    if not lines or not lines[0][1][0].upper().endswith("OFF"):
+        raise InputError(f"'{p}' is not an OFF file: it does not start with 'OFF'")
+    lineno, words = lines[0]
+    counts, body = (words[1:], lines[1:]) if len(words) > 1 else (None, lines[1:])
+    if counts is None:
+        if not body:
+            raise bad(lineno, "the header ends before the vertex and face counts")
+        (lineno, counts), body = body[0], body[1:]
+    if len(counts) < 2 or not all(w.isdigit() for w in counts[:3]):
+        raise bad(lineno, f"expected the counts 'vertices faces edges', got {' '.join(counts)!r}")
+    nv, nf = int(counts[0]), int(counts[1])
+    if nv == 0:
+        raise _empty(p)
+    if len(body) < nv + nf:
+        raise InputError(
+            f"'{p}' could not be read as OFF: its header (line {lineno}) declares "
+            f"{_plural(nv, 'vertex', 'vertices')} and {_plural(nf, 'face')}, but only "
+            f"{_plural(len(body), 'line')} of data follow; the file is truncated"
+        )
+    for lineno, words in body[:nv]:
+        if len(words) < 3:
+            raise bad(lineno, f"a vertex needs 3 coordinates, got {' '.join(words)!r}")
+    for lineno, words in body[nv : nv + nf]:
+        k = int(words[0]) if words[0].isdigit() else -1
+        if k < 3 or len(words) < k + 1:
+            raise bad(
+                lineno, f"expected 'k i1 ... ik' (k >= 3 vertex indices), got {' '.join(words)!r}"
+            )
 
 
 def _trimesh_load(p: str, ext: str):
@@ -317,6 +652,9 @@ def _read_obj(p: str) -> tuple[np.ndarray, np.ndarray | None]:
     Parsed here rather than by trimesh, which splits vertices along texture seams and drops
     unreferenced ones.
     """
+    with open(p, "rb") as fh:
+        if _binary(p, fh.read(4096)):
+            raise InputError(f"'{p}' is not a text OBJ file: it holds binary data")
     verts: list[list[str]] = []
     faces: list[list[int]] = []
     lineno = 0
@@ -329,25 +667,63 @@ def _read_obj(p: str) -> tuple[np.ndarray, np.ndarray | None]:
                         raise ValueError("a `v` line needs 3 coordinates")
                     verts.append(w[1:4])
                 elif line.startswith(("f ", "f\t")):
-                    idx = [int(w.split("/", 1)[0]) for w in line.split()[1:]]
+                    try:
+                        idx = [int(w.split("/", 1)[0]) for w in line.split()[1:]]
+                    except ValueError:
+                        raise ValueError("a face's vertex indices must be whole numbers") from None
                     if len(idx) < 3 or 0 in idx:
                         raise ValueError("a face needs at least 3 vertex indices, counted from 1")
                     n = len(verts)
                     idx = [i - 1 if i > 0 else n + i for i in idx]
                     faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+        lineno = 0
         v = np.array(verts, dtype=np.float64).reshape(-1, 3)
     except (ValueError, UnicodeError) as e:
+        if lineno:
+            why = f"line {lineno}: {_short(e)}"
+        else:  # a coordinate that is not a number: find its line
+            why = f"line {_first_bad_v_line(p)}: a vertex coordinate is not a number"
         raise InputError(
-            f"'{p}' could not be read as OBJ: line {lineno}: {_short(e)}; check that the file is "
-            "complete and in that format"
+            f"'{p}' could not be read as OBJ: {why}; check that the file is complete and in "
+            "that format"
         ) from e
+    if len(v) == 0:
+        if not _has_data_lines(p):
+            raise _empty(p)
+        raise InputError(
+            f"'{p}' holds no vertices ('v x y z' lines): it is truncated or not an OBJ file"
+        )
     return v, (np.array(faces, dtype=np.int64) if faces else None)
 
 
+def _has_data_lines(p: str) -> bool:
+    """Whether a text file holds anything but blank lines and `#` comments."""
+    with open(p, encoding="utf-8", errors="replace") as fh:
+        return any(line.split("#", 1)[0].strip() for line in fh)
+
+
+def _first_bad_v_line(p: str) -> int:
+    with open(p, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            if line.startswith(("v ", "v\t")):
+                try:
+                    [float(w) for w in line.split()[1:4]]
+                except ValueError:
+                    return lineno
+    return 0
+
+
 def _load_geometry(p: str, ext: str):
-    """(vertices, faces or None, ply vertex properties or {}) as trimesh reads them."""
+    """(vertices, faces or None, ply vertex properties or {}) of a PLY, STL or OFF file."""
     import trimesh
 
+    if ext == ".ply":
+        return _read_ply(p)
+    binary = False
+    if ext == ".stl":
+        binary = _check_stl(p)
+    elif ext == ".off":
+        _check_off(p)
     g = _trimesh_load(p, ext)
     if isinstance(g, trimesh.Scene):
         meshes = [m for m in g.dump() if isinstance(m, trimesh.Trimesh)]
@@ -356,61 +732,187 @@ def _load_geometry(p: str, ext: str):
         else:
             clouds = [m for m in g.dump() if isinstance(m, trimesh.PointCloud)]
             if not clouds:
+                if ext == ".stl" and not binary:
+                    raise InputError(
+                        f"'{p}' holds no complete ASCII STL facet ('facet normal ... "
+                        "endfacet'): it is truncated or not an STL file"
+                    )
                 raise _empty(p)
             g = clouds[0]
     vertices = np.asarray(g.vertices, dtype=np.float64).reshape(-1, 3)
     faces = getattr(g, "faces", None)
     faces = None if faces is None or len(faces) == 0 else np.asarray(faces, dtype=np.int64)
-    props = {}
-    raw = getattr(g, "metadata", {}).get("_ply_raw")
-    if isinstance(raw, dict) and isinstance(raw.get("vertex"), dict):
-        data = raw["vertex"].get("data")
-        if isinstance(data, dict):
-            props = {k: np.asarray(v).reshape(-1) for k, v in data.items()}
-        elif data is not None and getattr(data, "dtype", None) is not None and data.dtype.names:
-            props = {k: np.asarray(data[k]).reshape(-1) for k in data.dtype.names}
-    if ext == ".ply":
-        declared = _ply_header(p).get("vertex", 0)
-        if declared != len(vertices):
-            raise InputError(
-                f"'{p}' could not be read as PLY: its header declares {declared} vertices but "
-                f"{len(vertices)} were read; the file is probably truncated"
+    return vertices, faces, {}
+
+
+# --------------------------------------------------------------------------- .npy and .npz
+
+
+def _npy_header(fh, what: str) -> tuple[tuple[int, ...], np.dtype]:
+    """(shape, dtype) from the header of the .npy stream `fh` (left after the header)."""
+    try:
+        magic = fh.read(8)
+        if len(magic) < 8 or magic[:6] != b"\x93NUMPY":
+            raise ValueError("it does not start with the .npy signature")
+        version = (magic[6], magic[7])
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        elif version in ((2, 0), (3, 0)):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+        else:
+            raise ValueError(
+                f"it is in .npy format version {version[0]}.{version[1]}, unknown here"
             )
-    return vertices, faces, props
+    except (ValueError, EOFError, OSError, SyntaxError) as e:
+        raise InputError(f"{what} is not a .npy array: {_short(e)}") from e
+    if dtype.hasobject:
+        raise InputError(
+            f"{what} holds Python objects (pickled data), not numbers; jaxrbf reads only plain "
+            "numeric arrays"
+        )
+    return tuple(int(s) for s in shape), dtype
+
+
+def _check_npy_size(what: str, shape, dtype, present: int) -> None:
+    """Refuse an array header that claims more bytes than follow it or than memory holds."""
+    count = math.prod(shape)
+    nbytes = count * dtype.itemsize
+    if nbytes > present:
+        raise InputError(
+            f"{what} declares an array of shape {shape} ({size_text(nbytes)}) but holds only "
+            f"{size_text(present)} of data: it is truncated or corrupt"
+        )
+    check_memory(nbytes + 8 * count, f"reading {what} (shape {shape})", "use a smaller file")
+
+
+def _read_npy(p: str) -> np.ndarray:
+    """The array of the .npy file `p`, its header checked before the data are read."""
+    with open(p, "rb") as fh:
+        if fh.read(6) != b"\x93NUMPY":
+            what = "a zip archive (.npz?)" if _is_zip(p) else "another kind of file"
+            raise InputError(f"'{p}' is not a .npy array: it is {what}")
+        fh.seek(0)
+        shape, dtype = _npy_header(fh, f"'{p}'")
+        _check_npy_size(f"'{p}'", shape, dtype, os.path.getsize(p) - fh.tell())
+        fh.seek(0)
+        try:
+            return np.lib.format.read_array(fh, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            raise InputError(f"'{p}' could not be read as a .npy array: {_short(e)}") from e
+
+
+def _is_zip(p: str) -> bool:
+    with open(p, "rb") as fh:
+        return fh.read(4) in (b"PK\x03\x04", b"PK\x05\x06")
+
+
+#: Deflate expands at most about 1032 times; a member that claims more is refused unread.
+_MAX_DEFLATE_RATIO = 1100
 
 
 def read_npz(p: str, hint: str = "") -> dict[str, np.ndarray]:
     """Every array of the .npz archive `p`, read with `allow_pickle=False`.
 
-    Any failure (missing, truncated or corrupt archive, a member that is not a .npy array) is an
-    `InputError` naming the file; `hint` is appended to its message."""
+    Every member's header is checked before its data are read: its shape against the bytes the
+    archive holds for it and against the memory available. Any failure (missing, truncated or
+    corrupt archive, a member that is not a numeric .npy array, a file that is no zip archive
+    at all) is an `InputError` naming the file; `hint` is appended to its message."""
+    with open(p, "rb") as fh:
+        head = fh.read(6)
+    if head == b"\x93NUMPY":
+        raise InputError(f"'{p}' is a single .npy array, not an .npz archive of named arrays{hint}")
+    if not _is_zip(p):
+        kind = "binary data" if _binary(p, head) else "text"
+        raise InputError(
+            f"'{p}' is not an .npz archive (a zip of .npy arrays): it holds {kind}{hint}"
+        )
+    out: dict[str, np.ndarray] = {}
+    total = 0
     try:
-        # Open the file here: np.load leaks its handle when the zip is corrupt.
-        with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-            out = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as e:
+        with zipfile.ZipFile(p) as zf:
+            for info in zf.infolist():
+                name = info.filename
+                if info.is_dir():
+                    continue
+                if not name.endswith(".npy"):
+                    raise InputError(
+                        f"'{p}' could not be read as an .npz archive: member '{name}' is not a "
+                        f".npy array{hint}"
+                    )
+                what = f"'{p}' could not be read as an .npz archive: array '{name[:-4]}'"
+                limit = info.compress_size * (
+                    1 if info.compress_type == zipfile.ZIP_STORED else _MAX_DEFLATE_RATIO
+                )
+                with zf.open(info) as fh:
+                    shape, dtype = _npy_header(fh, what)
+                    present = min(info.file_size, limit + 1024) - fh.tell()
+                _check_npy_size(what, shape, dtype, present)
+                total += math.prod(shape) * (dtype.itemsize + 8)
+                check_memory(total, f"reading '{p}'", "use a smaller file")
+                with zf.open(info) as fh:
+                    out[name[:-4]] = np.lib.format.read_array(fh, allow_pickle=False)
+    except InputError as e:
+        if hint and not str(e).endswith(hint):
+            raise InputError(f"{e}{hint}") from e
+        raise
+    except (
+        zipfile.BadZipFile,
+        ValueError,
+        OSError,
+        EOFError,
+        RuntimeError,
+        NotImplementedError,
+        zlib.error,
+    ) as e:
         raise InputError(
             f"'{p}' could not be read as an .npz archive (truncated or corrupt: {_short(e)}){hint}"
         ) from e
-    for k, a in out.items():
-        if not isinstance(a, np.ndarray):  # np.load returns raw bytes for a member that is no .npy
-            raise InputError(
-                f"'{p}' could not be read as an .npz archive: member '{k}' is not a .npy array"
-                f"{hint}"
-            )
     return out
 
 
+# --------------------------------------------------------------------------- text tables
+
+
 def _loadtxt(p: str, what: str, **kw) -> np.ndarray:
+    with open(p, "rb") as fh:
+        if _binary(p, fh.read(4096)):
+            raise InputError(f"'{p}' could not be read as {what}: it holds binary data, not text")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "input contained no data"
             return np.loadtxt(p, dtype=np.float64, ndmin=2, **kw)
     except (ValueError, OSError) as e:
         raise InputError(
-            f"'{p}' could not be read as {what}: {_short(e)}; every line must hold the same "
-            "number of numbers"
+            f"'{p}' could not be read as {what}: {_bad_line(p, kw.get('delimiter'), kw.get('skiprows', 0))}"
         ) from e
+
+
+def _bad_line(p: str, delimiter: str | None, skip: int) -> str:
+    """Where and why a text table fails to load: the first line (1-based) that holds something
+    other than numbers, or whose count of numbers differs from the first data line's."""
+    width = None
+    with open(p, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            if lineno <= skip:
+                continue
+            words = [w.strip() for w in line.split("#", 1)[0].split(delimiter)]
+            if delimiter is None:
+                words = [w for w in words if w]
+            if not any(words):
+                continue
+            for w in words:
+                try:
+                    float(w)
+                except ValueError:
+                    return f"line {lineno}: {w[:40]!r} is not a number"
+            if width is None:
+                width = len(words)
+            elif len(words) != width:
+                return (
+                    f"line {lineno} holds {len(words)} numbers but the first data line holds "
+                    f"{width}; every line must hold the same number of numbers"
+                )
+    return "every line must hold the same number of numbers"
 
 
 # --------------------------------------------------------------------------- readers
@@ -571,11 +1073,7 @@ def read_polyline(path, closed: bool | None = None) -> Polyline:
     """
     p, ext = _check_file(path, _POLYLINE_INPUTS)
     if ext == ".npy":
-        try:
-            with open(p, "rb") as fh:
-                v = np.load(fh, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as e:
-            raise InputError(f"'{p}' could not be read as a .npy array: {_short(e)}") from e
+        v = _read_npy(p)
         if v.ndim != 2 or v.shape[1] != 2:
             raise InputError(f"'{p}' holds an array of shape {v.shape}; expected (n, 2) (x, y)")
         if not np.issubdtype(v.dtype, np.number):
@@ -639,7 +1137,9 @@ def read_input(path) -> Mesh | PointCloud | Polyline:
     if ext in (".obj", ".stl", ".off"):
         return read_mesh(p)
     if ext == ".ply":
-        return read_mesh(p) if _ply_header(p).get("face", 0) > 0 else read_points(p)
+        header = _ply_header(p)
+        has_faces = header.count("face") + header.count("tristrips") > 0
+        return read_mesh(p) if has_faces else read_points(p)
     if ext in (".xyz", ".txt"):
         return read_points(p)
     if ext == ".npz":

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ._errors import InputError
 from .kernels import AbstractKernel
 
 # Elements of one (rows x centres) kernel block: 2**21 float64 = 16 MiB, whatever the input size.
@@ -117,7 +118,7 @@ class AbstractModel(eqx.Module):
     def _flat(self, x: ArrayLike) -> tuple[Array, tuple[int, ...]]:
         x = jnp.asarray(x)
         if x.ndim < 1 or x.shape[-1] != self.dim:
-            raise ValueError(
+            raise InputError(
                 f"points must have shape (..., {self.dim}) for this {self.dim}-D model, got {x.shape}"
             )
         return x.reshape(-1, self.dim).astype(self.shift.dtype), x.shape[:-1]

@@ -109,167 +109,218 @@ def save(model: RBFModel | PartitionModel, path) -> None:
         np.savez(fh, **arrays)
 
 
-def _require(data, path, keys) -> None:
-    missing = [k for k in keys if k not in data]
-    if missing:
-        raise InputError(f"'{path}' is an incomplete jaxrbf model: missing {', '.join(missing)}")
+class _Fields:
+    """The arrays of a model file, read through one validator: every field's presence, dtype,
+    shape, finiteness and range is checked before it is used, and a failure names the file and
+    the field ("a damaged jaxrbf model")."""
+
+    def __init__(self, data: dict[str, np.ndarray], path: str):
+        self.data, self.path = data, path
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.data
+
+    def damaged(self, what: str) -> InputError:
+        return InputError(
+            f"'{self.path}' is a damaged jaxrbf model: {what}; save the model again with "
+            "`jaxrbf fit`"
+        )
+
+    def _get(self, key: str, shape) -> np.ndarray:
+        if key not in self.data:
+            raise self.damaged(f"field `{key}` is missing")
+        a = self.data[key]
+        if shape is not None:
+            want = tuple(shape)
+            ok = a.ndim == len(want) and all(
+                w is None or w == s for w, s in zip(want, a.shape, strict=True)
+            )
+            if not ok:
+                text = "(" + ", ".join("n" if w is None else str(w) for w in want)
+                text += ",)" if len(want) == 1 else ")"
+                raise self.damaged(
+                    f"inconsistent array shapes: field `{key}` has shape {a.shape}, expected {text}"
+                )
+        return a
+
+    def text(self, key: str, default: str | None = None) -> str:
+        """A scalar text field."""
+        if default is not None and key not in self.data:
+            return default
+        a = self._get(key, ())
+        if a.dtype.kind not in "US":
+            raise self.damaged(f"field `{key}` holds {a.dtype} values, expected text")
+        value = a.item()
+        return value.decode("utf-8", "replace") if isinstance(value, bytes) else value
+
+    def integer(self, key: str, lo: int, hi: int, shape=()) -> np.ndarray:
+        """An integer field (scalar by default) with every value in [lo, hi]."""
+        a = self._get(key, shape)
+        if a.dtype.kind not in "iu":
+            raise self.damaged(f"field `{key}` holds {a.dtype} values, expected whole numbers")
+        if a.size and (a.min() < lo or a.max() > hi):
+            bad = a.min() if a.min() < lo else a.max()
+            raise self.damaged(f"field `{key}` holds {bad}, outside [{lo}, {hi}]")
+        return a.astype(np.int64)
+
+    def real(self, key: str, shape=(), finite: bool = True, positive: bool = False) -> np.ndarray:
+        """A real field as float64: finite (unless `finite` is False) and, if `positive`,
+        greater than 0."""
+        a = self._get(key, shape)
+        if a.dtype.kind not in "iuf":
+            raise self.damaged(f"field `{key}` holds {a.dtype} values, expected real numbers")
+        a = a.astype(np.float64)
+        if finite and not np.all(np.isfinite(a)):
+            raise self.damaged(f"field `{key}` has NaN or infinite values")
+        if positive and not np.all(a > 0):
+            raise self.damaged(f"field `{key}` must be positive, got {a.min():.6g}")
+        return a
 
 
-def _finite(data, path, keys) -> None:
-    for k in keys:
-        if not np.all(np.isfinite(data[k])):
-            raise InputError(f"'{path}' has NaN or infinite values in '{k}'")
-
-
-def _kernel_from(data, path, pre: str):
-    name = str(data[pre + "kernel"])
+def _kernel_from(f: _Fields, pre: str):
+    name = f.text(pre + "kernel")
     if name not in KERNELS:
-        raise InputError(f"'{path}' names an unknown kernel {name!r}")
+        raise f.damaged(
+            f"field `{pre}kernel` names an unknown kernel {name!r} (known: {', '.join(KERNELS)})"
+        )
     cls = KERNELS[name]
-    return cls(float(data[pre + "radius"])) if cls.has_radius else cls()
+    if not cls.has_radius:
+        f.real(pre + "radius", finite=False)
+        return cls()
+    return cls(float(f.real(pre + "radius", positive=True)))
 
 
-def _rbf_from(data, path, pre: str = "") -> RBFModel:
-    keys = (
-        "kernel",
-        "radius",
-        "degree",
-        "centres",
-        "weights",
-        "coeffs",
-        "shift",
-        "scale",
-        "residual",
-    )
-    _require(data, path, [pre + k for k in keys])
-    kernel = _kernel_from(data, path, pre)
-    degree = int(data[pre + "degree"])
-    c, w, a, shift = (data[pre + k] for k in ("centres", "weights", "coeffs", "shift"))
-    ok = (
-        degree in (-1, 0, 1)
-        and c.ndim == 2
-        and c.shape[0] > 0
-        and w.shape == (c.shape[0],)
-        and shift.shape == (c.shape[1],)
-        and a.shape == (n_poly(degree, c.shape[1]),)
-        and data[pre + "scale"].shape == ()
-    )
-    if not ok:
-        raise InputError(f"'{path}' has inconsistent array shapes for a jaxrbf model")
-    _finite(data, path, [pre + k for k in ("centres", "weights", "coeffs", "shift", "scale")])
-    if not float(data[pre + "scale"]) > 0:
-        raise InputError(f"'{path}' has a non-positive 'scale'")
+def _rbf_from(f: _Fields, pre: str = "") -> RBFModel:
+    kernel = _kernel_from(f, pre)
+    degree = int(f.integer(pre + "degree", -1, 1))
+    c = f.real(pre + "centres", (None, None))
+    n, d = c.shape
+    if n == 0 or not 1 <= d <= 32:
+        raise f.damaged(f"field `{pre}centres` has shape {c.shape}")
+    w = f.real(pre + "weights", (n,))
+    a = f.real(pre + "coeffs", (n_poly(degree, d),))
+    shift = f.real(pre + "shift", (d,))
+    scale = f.real(pre + "scale", positive=True)
+    residual = f.real(pre + "residual", finite=False)
     background = None
-    if pre + "bg.kernel" in data:
-        background = _rbf_from(data, path, pre + "bg.")
-        if background.dim != c.shape[1]:
-            raise InputError(f"'{path}' has a background of another dimension than its model")
+    if pre + "bg.kernel" in f:
+        if pre:
+            raise f.damaged(f"a background `{pre}bg.` of a background (save writes one level)")
+        background = _rbf_from(f, pre + "bg.")
+        if background.dim != d:
+            raise f.damaged(f"its background is {background.dim}-D but the model is {d}-D")
     return RBFModel(
-        centres=jnp.asarray(c, dtype=float),
-        weights=jnp.asarray(w, dtype=float),
-        coeffs=jnp.asarray(a, dtype=float),
+        centres=jnp.asarray(c),
+        weights=jnp.asarray(w),
+        coeffs=jnp.asarray(a),
         kernel=kernel,
-        shift=jnp.asarray(shift, dtype=float),
-        scale=jnp.asarray(data[pre + "scale"], dtype=float),
-        residual=jnp.asarray(data[pre + "residual"], dtype=float),
+        shift=jnp.asarray(shift),
+        scale=jnp.asarray(scale),
+        residual=jnp.asarray(residual),
         degree=degree,
         background=background,
     )
 
 
-def _partition_from(data, path) -> PartitionModel:
-    _require(data, path, ("levels", "shift", "scale", "residual"))
-    model = _rbf_from(data, path, "base.")
-    shift, scale = data["shift"], data["scale"]
-    _finite(data, path, ("shift", "scale"))
-    levels = int(data["levels"])
-    if not 1 <= levels <= 64 or shift.shape != (model.dim,) or not float(scale) > 0:
-        raise InputError(f"'{path}' has an inconsistent partition-of-unity header")
+#: At most this many cells in a partition level's grid (its `cell_row` table is read in full).
+_MAX_CELLS = 2**31
+
+
+def _partition_from(f: _Fields) -> PartitionModel:
+    model = _rbf_from(f, "base.")
+    d = model.dim
+    shift = f.real("shift", (d,))
+    scale = f.real("scale", positive=True)
+    residual = f.real("residual", finite=False)
+    levels = int(f.integer("levels", 1, 64))
     for level in range(levels - 1, -1, -1):
         pre = f"level{level}."
-        names = [pre + "patch_" + k for k in _PU_FIELDS]
-        _require(
-            data,
-            path,
-            names + [pre + k for k in ("kernel", "radius", "degree", "cell_size", "grid_dims")],
-        )
-        f = {k: data[pre + "patch_" + k] for k in _PU_FIELDS}
-        degree = int(data[pre + "degree"])
-        dims = tuple(int(d) for d in data[pre + "grid_dims"])
-        d = model.dim
-        p = f["origin"].shape[0]
-        ok = (
-            degree in (-1, 0, 1)
-            and f["origin"].shape == (p, d)
-            and f["radius"].shape == (p,)
-            and f["centres"].ndim == 3
-            and f["centres"].shape[::2] == (p, d)
-            and f["weights"].shape == f["centres"].shape[:2]
-            and f["coeffs"].shape == (p, n_poly(degree, d))
-            and len(dims) == d
-            and min(dims) >= 1
-            and f["cell_row"].shape == (int(np.prod(dims)),)
-            and f["table"].ndim == 2
-            and f["grid_lo"].shape == (d,)
-            and np.all((f["table"] >= 0) & (f["table"] < p))
-            and np.all((f["cell_row"] >= 0) & (f["cell_row"] < f["table"].shape[0]))
-        )
-        if not ok:
-            raise InputError(f"'{path}' has inconsistent array shapes in level {level}")
-        _finite(
-            data,
-            path,
-            [
-                pre + "patch_" + k
-                for k in ("origin", "radius", "centres", "weights", "coeffs", "grid_lo")
-            ]
-            + [pre + "cell_size"],
-        )
+        degree = int(f.integer(pre + "degree", -1, 1))
+        dims = f.integer(pre + "grid_dims", 1, _MAX_CELLS, (d,))
+        cells = int(np.prod(dims))
+        if cells > _MAX_CELLS:
+            raise f.damaged(f"field `{pre}grid_dims` {tuple(dims)} makes {cells:,} cells")
+        origin = f.real(pre + "patch_origin", (None, d))
+        p = origin.shape[0]
+        radius = f.real(pre + "patch_radius", (p,), positive=True)
+        centres = f.real(pre + "patch_centres", (p, None, d))
+        m = centres.shape[1]
+        weights = f.real(pre + "patch_weights", (p, m))
+        coeffs = f.real(pre + "patch_coeffs", (p, n_poly(degree, d)))
+        table = f.integer(pre + "patch_table", 0, max(p - 1, 0), (None, None))
+        cell_row = f.integer(pre + "patch_cell_row", 0, max(len(table) - 1, 0), (cells,))
+        if p == 0 or len(table) == 0:
+            raise f.damaged(f"level {level} has no patches")
+        grid_lo = f.real(pre + "patch_grid_lo", (d,))
+        cell_size = f.real(pre + "cell_size", positive=True)
         model = PartitionModel(
-            origin=jnp.asarray(f["origin"], dtype=float),
-            radius=jnp.asarray(f["radius"], dtype=float),
-            centres=jnp.asarray(f["centres"], dtype=float),
-            weights=jnp.asarray(f["weights"], dtype=float),
-            coeffs=jnp.asarray(f["coeffs"], dtype=float),
-            cell_row=jnp.asarray(f["cell_row"], dtype=jnp.int32),
-            table=jnp.asarray(f["table"], dtype=jnp.int32),
-            grid_lo=jnp.asarray(f["grid_lo"], dtype=float),
-            cell_size=jnp.asarray(data[pre + "cell_size"], dtype=float),
-            kernel=_kernel_from(data, path, pre),
+            origin=jnp.asarray(origin),
+            radius=jnp.asarray(radius),
+            centres=jnp.asarray(centres),
+            weights=jnp.asarray(weights),
+            coeffs=jnp.asarray(coeffs),
+            cell_row=jnp.asarray(cell_row, dtype=jnp.int32),
+            table=jnp.asarray(table, dtype=jnp.int32),
+            grid_lo=jnp.asarray(grid_lo),
+            cell_size=jnp.asarray(cell_size),
+            kernel=_kernel_from(f, pre),
             background=model,
-            shift=jnp.asarray(shift, dtype=float),
-            scale=jnp.asarray(scale, dtype=float),
-            residual=jnp.asarray(data["residual"], dtype=float),
+            shift=jnp.asarray(shift),
+            scale=jnp.asarray(scale),
+            residual=jnp.asarray(residual),
             degree=degree,
-            grid_dims=dims,
+            grid_dims=tuple(int(k) for k in dims),
         )
     return model
 
 
 def load(path) -> RBFModel | PartitionModel:
-    """Read a model written by `save`, validating every entry.
+    """Read a model written by `save`, validating every field (presence, dtype, shape,
+    finiteness, range) before it is used.
 
-    **Raises:** `InputError` naming the file and the problem (missing, truncated or corrupt, not a
-    jaxrbf model, written by a newer version, inconsistent shapes, NaN).
+    **Raises:** `InputError` naming the file and the problem, with its own message for a file
+    that is no jaxrbf model at all (a foreign file), one written by a newer jaxrbf (a newer
+    format) and a damaged one (truncated or corrupt archive, a missing or malformed field).
     """
+    from .io import is_zip_file
+
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError(f"model file '{path}' does not exist")
+    if os.path.getsize(path) == 0:
+        raise InputError(
+            f"'{path}' is an empty file (0 bytes): the model is truncated or corrupt; save the "
+            "model again with `jaxrbf fit`"
+        )
+    if not is_zip_file(path):
+        raise InputError(
+            f"'{path}' is not a jaxrbf model: a model is an .npz archive written by `jaxrbf fit` "
+            "(this file is not an .npz archive)"
+        )
     data = read_npz(path, hint="; save the model again with `jaxrbf fit`")
-    if data.get("format", np.array("")).item() != FORMAT:
-        raise InputError(f"'{path}' is not a jaxrbf model (it has no format='{FORMAT}' entry)")
-    _require(data, path, ("format_version",))
-    version = int(data["format_version"])
+    f = _Fields(data, path)
+    fmt = data.get("format")
+    if fmt is None or fmt.dtype.kind not in "US" or FORMAT not in fmt.astype(str):
+        names = sorted(data)
+        what = f"arrays {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}"
+        what = what if names else "no arrays"
+        if fmt is not None and fmt.dtype.kind in "US" and fmt.size == 1:
+            what = f"format {fmt.item()!r}"
+        raise InputError(
+            f"'{path}' is not a jaxrbf model (it holds {what}, not format='{FORMAT}'); a model "
+            "is written by `jaxrbf fit`"
+        )
+    if f.text("format") != FORMAT:
+        raise f.damaged("field `format` is not the single text 'jaxrbf-model'")
+    version = int(f.integer("format_version", 1, np.iinfo(np.int64).max))
     if version > FORMAT_VERSION:
         raise InputError(
-            f"'{path}' was written in model format {version}, newer than this jaxrbf reads "
-            f"({FORMAT_VERSION}); upgrade jaxrbf"
+            f"'{path}' was written by a newer jaxrbf, in model format {version}, newer than this "
+            f"jaxrbf reads ({FORMAT_VERSION}); upgrade jaxrbf to read it"
         )
-    kind = str(data.get("kind", np.array("rbf")))
+    kind = f.text("kind", default="rbf")
     if kind == "rbf":
-        return _rbf_from(data, path)
+        return _rbf_from(f)
     if kind == "partition":
-        return _partition_from(data, path)
-    raise InputError(
-        f"'{path}' holds an unknown kind of model {kind!r} (expected rbf or partition)"
-    )
+        return _partition_from(f)
+    raise f.damaged(f"field `kind` is {kind!r}, expected 'rbf' or 'partition'")

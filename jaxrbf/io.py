@@ -789,7 +789,7 @@ def _read_npy(p: str) -> np.ndarray:
     """The array of the .npy file `p`, its header checked before the data are read."""
     with open(p, "rb") as fh:
         if fh.read(6) != b"\x93NUMPY":
-            what = "a zip archive (.npz?)" if _is_zip(p) else "another kind of file"
+            what = "a zip archive (.npz?)" if is_zip_file(p) else "another kind of file"
             raise InputError(f"'{p}' is not a .npy array: it is {what}")
         fh.seek(0)
         shape, dtype = _npy_header(fh, f"'{p}'")
@@ -801,8 +801,9 @@ def _read_npy(p: str) -> np.ndarray:
             raise InputError(f"'{p}' could not be read as a .npy array: {_short(e)}") from e
 
 
-def _is_zip(p: str) -> bool:
-    with open(p, "rb") as fh:
+def is_zip_file(path) -> bool:
+    """Whether the file at `path` starts like a zip archive (an .npz is one)."""
+    with open(path, "rb") as fh:
         return fh.read(4) in (b"PK\x03\x04", b"PK\x05\x06")
 
 
@@ -821,7 +822,7 @@ def read_npz(p: str, hint: str = "") -> dict[str, np.ndarray]:
         head = fh.read(6)
     if head == b"\x93NUMPY":
         raise InputError(f"'{p}' is a single .npy array, not an .npz archive of named arrays{hint}")
-    if not _is_zip(p):
+    if not is_zip_file(p):
         kind = "binary data" if _binary(p, head) else "text"
         raise InputError(
             f"'{p}' is not an .npz archive (a zip of .npy arrays): it holds {kind}{hint}"

@@ -97,8 +97,9 @@ def remove_outliers(
         raise InputError(f"`plane_ratio` must be a positive number or None, got {plane_ratio!r}")
     if len(p) < k + 1:
         raise InputError(
-            f"`points` has {len(p):,} points; outlier removal with k = {k} neighbours needs at "
-            f"least {k + 1} (lower `k`)"
+            f"there are only {len(p):,} points; outlier removal compares each point with its "
+            f"{k} nearest neighbours, so it needs at least {k + 1}: give more points (in Python, "
+            "or lower `k`)"
         )
     dist, _ = cKDTree(p).query(p, k=k + 1, workers=-1)
     mean = dist[:, 1:].mean(axis=1)

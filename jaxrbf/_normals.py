@@ -235,8 +235,9 @@ def estimate_normals(points, k: int | None = None, verbose: bool = False):
             else ""
         )
         raise InputError(
-            f"`points` has {n_pts:,} distinct points{dup}; normal estimation with k = {k} "
-            f"neighbours needs at least {k + 1} (lower `k` or give more points)"
+            f"there are only {n_pts:,} distinct points{dup}; normal estimation fits a plane to "
+            f"each point's {k} nearest neighbours, so it needs at least {k + 1}: give more "
+            "points (in Python, or lower `k`)"
         )
 
     tree = cKDTree(p)

@@ -5,6 +5,7 @@ the surface (`polygonize(..., narrow_band=True)`)."""
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,8 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InputError
-from ._fit import _available_memory
 from ._project import project as _project
+from ._util import available_memory as _available_memory
+from ._util import check_memory
 
 _CHUNK = 2**15
 #: Points per call of an implicit's own bulk evaluator (see `_bulk`).
@@ -580,6 +582,49 @@ def _sizes(coarsening: int, refine: int) -> list[int]:
     return sizes
 
 
+#: Host bytes per cell of a narrow band's coarse levels (a float64 distance and a few masks).
+_COARSE_BYTES = 16
+
+
+def grid_memory(shape, narrow_band: bool, coarsening: int = 8, refine: int = 1) -> int:
+    """Bytes a grid of `shape` needs at least: every sample of a dense grid (`_DENSE_BYTES`
+    each), or the coarse levels a narrow band allocates in full (its band itself grows with the
+    surface's area and is not counted)."""
+    if not narrow_band:
+        return _DENSE_BYTES * math.prod(shape)
+    sizes = _sizes(int(coarsening), int(refine))
+    return sum(_COARSE_BYTES * math.prod(-(-s // c) + 1 for s in shape) for c in sizes)
+
+
+def check_resolution(
+    resolution,
+    extent,
+    *,
+    narrow_band: bool | None = None,
+    name: str = "`resolution`",
+    coarsening: int = 8,
+    refine: int = 1,
+) -> tuple[int, ...]:
+    """Refuse, before any work, a `resolution` whose grid over a box of `extent` (the box's side
+    lengths) does not fit in memory; `name` is the option's name in the message (e.g.
+    "--resolution"). `narrow_band` None: the rule of `polygonize` (on above 160 samples along
+    the longest side, 3-D only). **Returns:** the grid's shape."""
+    extent = np.asarray(extent, dtype=float)
+    if np.ndim(resolution) == 0 and (isinstance(resolution, bool) or int(resolution) < 2):
+        raise InputError(f"{name} must be at least 2 samples, got {resolution}")
+    _, shape = _grid_shape(np.zeros_like(extent), extent, resolution)
+    if narrow_band is None:
+        narrow_band = len(shape) == 3 and max(shape) > _AUTO_BAND
+    kind = "narrow-band " if narrow_band else ""
+    check_memory(
+        grid_memory(shape, bool(narrow_band), coarsening, refine),
+        f"{name} {resolution} (a {kind}{'x'.join(map(str, shape))} grid)",
+        f"lower {name}",
+        avail=_available_memory(),
+    )
+    return shape
+
+
 def _check_band_args(coarsening, refine, band_width) -> None:
     for name, value, least in (("coarsening", coarsening, 1), ("refine", refine, 0)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
@@ -728,6 +773,12 @@ def polygonize(
     if narrow_band is None:
         narrow_band = max(shape) > _AUTO_BAND
     if narrow_band:
+        check_memory(
+            grid_memory(shape, True, coarsening, refine),
+            f"a narrow-band {'x'.join(map(str, shape))} grid",
+            "lower `resolution`",
+            avail=_available_memory(),
+        )
         sizes = _sizes(int(coarsening), int(refine))
         disable = (not sys.stderr.isatty()) if progress is None else not progress
         verts, faces, orient = _polygonize_band(
@@ -832,5 +883,6 @@ def contour(
     from skimage.measure import find_contours
 
     lo, hi = _bounds(implicit, bounds, 2, padding)
+    check_resolution(resolution, hi - lo, narrow_band=False)
     grid, spacing = sample_grid(implicit, lo, hi, resolution, progress=progress, desc="contouring")
     return [lo + c * spacing for c in find_contours(grid, level)]

@@ -6,6 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from ._errors import InputError
+from ._util import check_memory
+
+#: Host bytes per point `sample_faces` allocates (points, normals, triangles, barycentrics).
+_SAMPLE_BYTES = 256
 
 
 def bounding_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -62,10 +66,18 @@ def auto_flag(value, name: str, auto: bool) -> bool:
 
 def check_not_flat(points: np.ndarray, what: str = "points") -> None:
     """Raise when the points lie on one hyperplane (a plane in 3-D, a line in 2-D)."""
+    n, d = points.shape
+    shape = "plane" if d == 3 else "line"
+    closed = "surface" if d == 3 else "curve"
     centred = points - points.mean(axis=0)
     s = np.linalg.svd(centred, compute_uv=False)
-    if s[0] == 0 or s[-1] <= 1e-9 * s[0]:
-        shape = "plane" if points.shape[1] == 3 else "line"
+    if n <= d or s[0] == 0:
+        many = "1 point" if n == 1 else f"{n} copies of one point" if s[0] == 0 else f"{n} points"
+        raise InputError(
+            f"the {what} are only {many}: a closed {closed} needs at least {d + 1} points that "
+            f"do not all lie on one {shape}"
+        )
+    if s[-1] <= 1e-9 * s[0]:
         raise InputError(
             f"all {len(points)} {what} lie on one {shape}: they enclose no volume, so no closed "
             "surface can be reconstructed from them"
@@ -86,6 +98,7 @@ def sample_faces(
     vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """`n` points uniform over the mesh's area, each with its face's unit normal."""
+    check_memory(_SAMPLE_BYTES * n, f"sampling {n:,} points on the mesh", "ask for fewer points")
     tri = vertices[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = np.linalg.norm(fn, axis=1)

@@ -32,17 +32,18 @@ def size_text(nbytes: float) -> str:
     return f"{value:.1f} PiB"  # pragma: no cover (the loop returns)
 
 
-def check_memory(need: float, what: str, fix: str) -> None:
+def check_memory(need: float, what: str, fix: str, avail: int | None = None) -> None:
     """Refuse, before anything is allocated, work that needs more memory than is available.
 
     **Arguments:**
     - `need`: the bytes the work needs (an estimate of its peak).
     - `what`: the work in the user's terms, e.g. "a 100000-sample grid" (starts the message).
     - `fix`: what to change, e.g. "lower --resolution".
+    - `avail`: the bytes available (default: `available_memory()`).
 
     **Raises:** `InputError` "`what` needs about X but only Y of memory is available; `fix`".
     """
-    avail = available_memory()
+    avail = available_memory() if avail is None else avail
     if avail is not None and need > avail:
         raise InputError(
             f"{what} needs about {size_text(need)} of memory but {size_text(avail)} is "

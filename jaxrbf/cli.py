@@ -214,10 +214,17 @@ def _tuned(source, args, **extra):
     )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (`jaxrbf: error: ...`), as every other error."""
+
+    def error(self, message: str):
+        self.exit(2, f"jaxrbf: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jaxrbf",
         description="Implicit surfaces from radial basis functions (meshes, point clouds, polylines).",
     )
@@ -310,17 +317,100 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_output(path: str, allowed: tuple[str, ...]) -> None:
+def _check_output(path: str, allowed: tuple[str, ...] | None, what: str = "output") -> None:
+    """Refuse, before any work, an output path that cannot be written (`jaxrbf.io.check_output`)."""
+    from .io import check_output
+
+    check_output(path, allowed, what)
+
+
+#: Least grid samples along the longest side that `--resolution` accepts.
+MIN_RESOLUTION = 4
+
+
+def _positive(name: str, value, strict: bool = True) -> None:
     from ._errors import InputError
 
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in allowed:
+    if value is None:
+        return
+    if not (np.isfinite(value) and (value > 0 if strict else value >= 0)):
+        need = "a positive number" if strict else "a number >= 0"
+        raise InputError(f"{name} must be {need}, got {value}")
+
+
+def _check_options(args) -> None:
+    """Refuse bad or hostile option values up front, before any file is read or fit: sizes
+    against the memory available, angles and distances against their ranges."""
+    from ._errors import InputError
+
+    points = getattr(args, "points", None)
+    if points is not None:
+        if points < 1:
+            raise InputError(f"--points must be at least 1, got {points}")
+        from ._partition import check_memory
+
+        try:  # the partition fit: three constraints per sample (on, outside, inside)
+            check_memory(3 * points, 3)
+        except InputError as e:
+            raise InputError(f"--points {points:,} is too many for this machine: {e}") from None
+    resolution = getattr(args, "resolution", None)
+    if resolution is not None and resolution < MIN_RESOLUTION:
         raise InputError(
-            f"output '{path}' has an unsupported format '{ext}'; expected one of {', '.join(allowed)}"
+            f"--resolution must be at least {MIN_RESOLUTION} samples along the longest side, got "
+            f"{resolution}"
         )
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise InputError(f"the folder of output '{path}' does not exist")
+    for name in ("radius", "offset"):
+        _positive(f"--{name}", getattr(args, name, None))
+    _positive("--smoothing", getattr(args, "smoothing", None), strict=False)
+    if args.command == "render":
+        if not 0 < args.fov < 180:
+            raise InputError(
+                f"--fov must be an angle between 0 and 180 degrees (exclusive), got {args.fov:g}"
+            )
+        for name in ("azimuth", "elevation"):
+            if not np.isfinite(getattr(args, name)):
+                raise InputError(f"--{name} must be a finite angle in degrees")
+        if not -90 < args.elevation < 90:
+            raise InputError(
+                f"--elevation must be between -90 and 90 degrees (exclusive), got "
+                f"{args.elevation:g}"
+            )
+        from ._util import check_memory as check_bytes
+        from .render import RENDER_PIXEL_BYTES
+
+        w, h = args.size
+        if w < 1 or h < 1:
+            raise InputError(f"--size must be two positive integers (width, height), got {w} {h}")
+        check_bytes(RENDER_PIXEL_BYTES * w * h, f"--size {w} {h}", "use a smaller --size")
+    if args.command == "evaluate":
+        if args.samples < 1:
+            raise InputError(f"--samples must be at least 1, got {args.samples}")
+        from ._util import check_memory as check_bytes
+
+        check_bytes(512 * args.samples, f"--samples {args.samples:,}", "use fewer --samples")
+        _positive("--threshold", args.threshold)
+
+
+def _check_resolution(args, source=None, model=None) -> None:
+    """Refuse a `--resolution` whose grid does not fit in memory, before the fit: over the
+    model's box when there is a model, else over the input's box (read once for this)."""
+    from . import io
+    from ._polygonize import check_resolution
+
+    if getattr(args, "resolution", None) is None:
+        return
+    if model is not None:
+        lo, hi = (np.asarray(b, dtype=float) for b in model.bounds())
+    else:
+        data = source[0] if source[1] is not None else None
+        if data is None:
+            got = io.read_input(source[0])
+            data = got.vertices if not isinstance(got, io.PointCloud) else got.points
+        data = np.asarray(data, dtype=float)
+        lo, hi = data.min(axis=0), data.max(axis=0)
+    extent = hi - lo
+    extent = np.where(extent > 0, extent, extent.max()) * 1.1  # the grid's padding
+    check_resolution(args.resolution, extent, name="--resolution")
 
 
 def _source(args):
@@ -390,7 +480,7 @@ def _write_surface(model, args, samples=None):
             io.write_mesh(args.output, mesh)
             what = f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces"
     elif model.dim == 2:
-        curves = contour(model, resolution=max(args.resolution or 128, 2), progress=progress)
+        curves = contour(model, resolution=args.resolution or 128, progress=progress)
         io.write_polylines(args.output, curves)
         what = f"{len(curves)} curves"
     else:
@@ -479,11 +569,13 @@ def _run(args) -> int:
     from ._reconstruct import fit_surface, fit_surface_samples
     from ._serialize import load, save
 
+    _check_options(args)
     if args.command == "reconstruct":
         source = _source(args)
         _check_output(args.output, _out_kinds(source))
         if args.preview:
-            _check_output(args.preview, (".png",))
+            _check_output(args.preview, (".png",), "--preview")
+        _check_resolution(args, source)
         if args.tune:
             from ._errors import InputError
 
@@ -538,12 +630,18 @@ def _run(args) -> int:
         if not args.quiet:
             log(f"wrote {args.output}")
     elif args.command == "mesh":
+        _check_output(args.output, None)
         model = load(args.model)
         _check_output(args.output, MESH_OUT if model.dim == 3 else CURVE_OUT)
+        _check_resolution(args, model=model)
         _write_surface(model, args)
     elif args.command == "features":
         from .features import run_features
 
+        _check_output(args.output, None)
+        if args.polylines:
+            _check_output(args.polylines, None, "--polylines")
+        _check_resolution(args, model=load(args.model))
         return run_features(args)
     elif args.command == "render":
         _check_output(args.output, (".png",))
@@ -578,6 +676,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except OSError as e:
         print(f"jaxrbf: error: {e.strerror or e}: {e.filename or ''}".rstrip(": "), file=sys.stderr)
+        return 2
+    except MemoryError:  # a size no check foresaw: still one line, and nothing was written
+        print(
+            "jaxrbf: error: out of memory; use fewer points or a lower resolution",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt:
         print("jaxrbf: interrupted", file=sys.stderr)

@@ -41,6 +41,7 @@ __all__ = [
     "POLYLINE_OUTPUTS",
     "as_points",
     "atomic_output",
+    "check_output",
     "read_mesh",
     "read_points",
     "read_polyline",
@@ -1164,6 +1165,48 @@ def read_input(path) -> Mesh | PointCloud | Polyline:
 # --------------------------------------------------------------------------- writing
 
 
+def _name_max(folder: str) -> int:
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return 255
+
+
+def check_output(path, allowed: tuple[str, ...] | None = None, what: str = "output") -> str:
+    """Check, before any work starts, that `path` can be written: a known extension (one of
+    `allowed`, when given), not a folder nor another non-file, in a folder that exists and is
+    writable, with a name the file system accepts. Every failure is an `InputError` that names
+    `path` as given (`what` says what it is, e.g. "output" or "--preview").
+
+    **Returns:** the lower-case extension."""
+    p = os.fspath(path)
+    if not p:
+        raise InputError(f"the {what} path is empty; give a file name")
+    ext = _ext(p)
+    if allowed is not None and ext not in allowed:
+        got = f"an unsupported format '{ext}'" if ext else "no extension"
+        raise InputError(f"{what} '{p}' has {got}; expected one of {', '.join(allowed)}")
+    if os.path.isdir(p):
+        raise InputError(f"{what} '{p}' is a folder; give a file name inside it")
+    folder = os.path.dirname(os.path.abspath(p))
+    if not os.path.isdir(folder):
+        raise InputError(
+            f"cannot write {what} '{p}': the folder '{folder}' does not exist; create it first"
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write {what} '{p}': the folder '{folder}' is not writable")
+    if os.path.lexists(p) and not os.path.isfile(p):
+        raise InputError(f"cannot write {what} '{p}': it exists and is not a regular file")
+    name = len(os.fsencode(os.path.basename(p)))
+    limit = _name_max(folder)
+    if name > limit:
+        raise InputError(
+            f"cannot write {what} '{p}': its file name is {name} bytes long, more than the file "
+            f"system allows ({limit}); choose a shorter name"
+        )
+    return ext
+
+
 @contextmanager
 def atomic_output(path) -> Iterator[str]:
     """Write a file atomically.
@@ -1173,24 +1216,25 @@ def atomic_output(path) -> Iterator[str]:
     raises, the temporary file is deleted and an existing file at `path` is left as it was.
 
     **Arguments:**
-    - `path`: the final output path; its folder must exist.
+    - `path`: the final output path; its folder must exist (see `check_output`).
 
     **Returns:** (yields) the temporary path to write to.
     """
     p = os.fspath(path)
+    check_output(p)
     folder = os.path.dirname(os.path.abspath(p))
-    if not os.path.isdir(folder):
-        raise InputError(
-            f"cannot write '{p}': the folder '{folder}' does not exist; create it first"
-        )
     base = os.path.basename(p)
     suffix = Path(base).suffix
     stem = base[: len(base) - len(suffix)] if suffix else base
-    tmp = os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.tmp{suffix}")
+    token = secrets.token_hex(4)
+    tmp = f".{stem}.{token}.tmp{suffix}"
+    if len(os.fsencode(tmp)) > _name_max(folder):  # a long name: a short temporary one
+        tmp = f".jaxrbf-{token}.tmp{suffix}"
+    tmp = os.path.join(folder, tmp)
     try:
         os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
     except OSError as e:
-        raise InputError(f"cannot write '{p}': {_short(e)}") from e
+        raise InputError(f"cannot write '{p}': {e.strerror or _short(e)}") from e
     try:
         yield tmp
         fd = os.open(tmp, os.O_RDONLY)
@@ -1199,6 +1243,10 @@ def atomic_output(path) -> Iterator[str]:
         finally:
             os.close(fd)
         os.replace(tmp, p)
+    except OSError as e:
+        with suppress(OSError):
+            os.remove(tmp)
+        raise InputError(f"cannot write '{p}': {e.strerror or _short(e)}") from e
     except BaseException:
         with suppress(OSError):
             os.remove(tmp)
@@ -1213,7 +1261,7 @@ def _out_ext(path, allowed, what: str) -> str:
         raise InputError(
             f"cannot write {what} to '{p}' ({got}); supported output formats: {', '.join(allowed)}"
         )
-    return ext
+    return check_output(p, allowed)
 
 
 def write_mesh(path, mesh_or_vertices, faces=None) -> None:

@@ -48,6 +48,7 @@ import numpy as np
 from ._constraints import progress_bar
 from ._errors import InputError
 from ._project import value_and_gradient as _value_grad
+from ._util import check_memory
 
 __all__ = ["Camera", "Rendering", "render", "save_png", "mesh_error", "mean_curvature"]
 
@@ -56,6 +57,8 @@ _ROUND = 4  # marching steps per chunk between two wavefront compactions
 _ACTIVE, _BRACKET, _MISS = 0, 1, 2
 _IMAGE_EXTS = (".png",)
 _MAX_PIXELS = 8192 * 8192
+#: Host bytes per pixel of a frame, an upper estimate (colour, depth, normals, masks, float64).
+RENDER_PIXEL_BYTES = 128
 
 
 # ------------------------------------------------------------------------------------- camera
@@ -209,6 +212,12 @@ class Camera:
         - `up`, `fov`, `size`: as for `Camera`. `distance`: from the centre (default: framed).
         """
         lo, hi = _box(bounds)
+        try:
+            ok = np.isfinite(float(fov)) and 0 < float(fov) < 180
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise InputError(f"camera `fov` must be in (0, 180) degrees, got {fov!r}")
         for name, v in (("azimuth", azimuth), ("elevation", elevation)):
             if not np.isfinite(float(v)):
                 raise InputError(f"`{name}` must be a finite angle in degrees, got {v}")
@@ -247,6 +256,7 @@ def _check_size(size) -> tuple[int, int]:
         )
     if w * h > _MAX_PIXELS:
         raise InputError(f"image `size` {w}x{h} is too large (at most {_MAX_PIXELS:,} pixels)")
+    check_memory(RENDER_PIXEL_BYTES * w * h, f"an image of {w}x{h} pixels", "use a smaller `size`")
     return w, h
 
 

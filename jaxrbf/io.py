@@ -968,12 +968,20 @@ def _validated_mesh(p: str, vertices: np.ndarray, faces: np.ndarray) -> Mesh:
     return Mesh(np.ascontiguousarray(vertices, dtype=np.float64), faces)
 
 
+def _real(p: str, name: str, a: np.ndarray) -> np.ndarray:
+    """`a` if it holds real numbers (integers or floats), else an `InputError` naming `name`."""
+    if a.dtype.kind not in "iuf":
+        name = name if name.startswith("the ") else f"`{name}`"
+        raise InputError(f"'{p}': {name} holds {a.dtype} values; expected real numbers")
+    return a
+
+
 def _npz_mesh(p: str, z: dict[str, np.ndarray]) -> Mesh:
     if "vertices" not in z or "faces" not in z:
         raise InputError(
             f"'{p}' has arrays {sorted(z)}; a mesh .npz needs `vertices` (n, 3) and `faces` (m, 3)"
         )
-    v, f = z["vertices"], z["faces"]
+    v, f = _real(p, "vertices", z["vertices"]), _real(p, "faces", z["faces"])
     if v.ndim != 2 or v.shape[1] != 3 or not np.issubdtype(v.dtype, np.number):
         raise InputError(f"'{p}': `vertices` must have shape (n, 3), got {v.shape}")
     if len(v) == 0:
@@ -1015,7 +1023,8 @@ def read_points(path) -> PointCloud:
                 f"'{p}' has arrays {sorted(z)}; a point-cloud .npz needs `points` (n, d) and "
                 f"optionally `normals` (n, d){hint}"
             )
-        points, normals = z["points"], z.get("normals")
+        points = _real(p, "points", z["points"])
+        normals = None if "normals" not in z else _real(p, "normals", z["normals"])
         if points.ndim != 2 or points.shape[1] not in (2, 3):
             raise InputError(
                 f"'{p}': `points` must have shape (n, 2) or (n, 3), got {points.shape}"
@@ -1075,7 +1084,7 @@ def read_polyline(path, closed: bool | None = None) -> Polyline:
     """
     p, ext = _check_file(path, _POLYLINE_INPUTS)
     if ext == ".npy":
-        v = _read_npy(p)
+        v = _real(p, "the array", _read_npy(p))
         if v.ndim != 2 or v.shape[1] != 2:
             raise InputError(f"'{p}' holds an array of shape {v.shape}; expected (n, 2) (x, y)")
         if not np.issubdtype(v.dtype, np.number):
@@ -1246,7 +1255,9 @@ def atomic_output(path) -> Iterator[str]:
     except OSError as e:
         with suppress(OSError):
             os.remove(tmp)
-        raise InputError(f"cannot write '{p}': {e.strerror or _short(e)}") from e
+        if e.filename == tmp:  # name the user's path, not the temporary file's
+            e.filename = p
+        raise
     except BaseException:
         with suppress(OSError):
             os.remove(tmp)

@@ -409,6 +409,8 @@ def _check_resolution(args, source=None, model=None) -> None:
         data = np.asarray(data, dtype=float)
         lo, hi = data.min(axis=0), data.max(axis=0)
     extent = hi - lo
+    if not extent.max() > 0:
+        return  # one point: the fit refuses it
     extent = np.where(extent > 0, extent, extent.max()) * 1.1  # the grid's padding
     check_resolution(args.resolution, extent, name="--resolution")
 

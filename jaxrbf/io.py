@@ -768,8 +768,7 @@ def _npy_header(fh, what: str) -> tuple[tuple[int, ...], np.dtype]:
         raise InputError(f"{what} is not a .npy array: {_short(e)}") from e
     if dtype.hasobject:
         raise InputError(
-            f"{what} holds Python objects (pickled data), not numbers; jaxrbf reads only plain "
-            "numeric arrays"
+            f"{what} holds Python objects, not numbers; jaxrbf reads only plain numeric arrays"
         )
     return tuple(int(s) for s in shape), dtype
 
@@ -1192,11 +1191,11 @@ def check_output(path, allowed: tuple[str, ...] | None = None, what: str = "outp
     if not p:
         raise InputError(f"the {what} path is empty; give a file name")
     ext = _ext(p)
+    if os.path.isdir(p):
+        raise InputError(f"{what} '{p}' is a folder; give a file name inside it")
     if allowed is not None and ext not in allowed:
         got = f"an unsupported format '{ext}'" if ext else "no extension"
         raise InputError(f"{what} '{p}' has {got}; expected one of {', '.join(allowed)}")
-    if os.path.isdir(p):
-        raise InputError(f"{what} '{p}' is a folder; give a file name inside it")
     folder = os.path.dirname(os.path.abspath(p))
     if not os.path.isdir(folder):
         raise InputError(

@@ -595,40 +595,46 @@ def _check_off(p: str) -> None:
         head = fh.read(4096)
     if _binary(p, head):
         raise InputError(f"'{p}' is not a text OFF file: it holds binary data")
-    lines = []  # (line number, words) of the lines that hold data
     with open(p, encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, 1):
-            words = line.split("#", 1)[0].split()
-            if words:
-                lines.append((lineno, words))
-    if not lines or not lines[0][1][0].upper().endswith("OFF"):
-        raise InputError(f"'{p}' is not an OFF file: it does not start with 'OFF'")
-    lineno, words = lines[0]
-    counts, body = (words[1:], lines[1:]) if len(words) > 1 else (None, lines[1:])
-    if counts is None:
-        if not body:
-            raise bad(lineno, "the header ends before the vertex and face counts")
-        (lineno, counts), body = body[0], body[1:]
-    if len(counts) < 2 or not all(w.isdigit() for w in counts[:3]):
-        raise bad(lineno, f"expected the counts 'vertices faces edges', got {' '.join(counts)!r}")
-    nv, nf = int(counts[0]), int(counts[1])
-    if nv == 0:
-        raise _empty(p)
-    if len(body) < nv + nf:
-        raise InputError(
-            f"'{p}' could not be read as OFF: its header (line {lineno}) declares "
-            f"{_plural(nv, 'vertex', 'vertices')} and {_plural(nf, 'face')}, but only "
-            f"{_plural(len(body), 'line')} of data follow; the file is truncated"
-        )
-    for lineno, words in body[:nv]:
-        if len(words) < 3:
-            raise bad(lineno, f"a vertex needs 3 coordinates, got {' '.join(words)!r}")
-    for lineno, words in body[nv : nv + nf]:
-        k = int(words[0]) if words[0].isdigit() else -1
-        if k < 3 or len(words) < k + 1:
+        lines = (
+            (lineno, words)
+            for lineno, line in enumerate(fh, 1)
+            if (words := line.split("#", 1)[0].split())
+        )  # the lines that hold data, streamed: a large file is never held as words
+        lineno, words = next(lines, (0, [""]))
+        if not words[0].upper().endswith("OFF"):
+            raise InputError(f"'{p}' is not an OFF file: it does not start with 'OFF'")
+        counts = words[1:]
+        if not counts:
+            lineno, counts = next(lines, (lineno, None))
+            if counts is None:
+                raise bad(lineno, "the header ends before the vertex and face counts")
+        if len(counts) < 2 or not all(w.isdigit() for w in counts[:3]):
             raise bad(
-                lineno, f"expected 'k i1 ... ik' (k >= 3 vertex indices), got {' '.join(words)!r}"
+                lineno, f"expected the counts 'vertices faces edges', got {' '.join(counts)!r}"
             )
+        nv, nf = int(counts[0]), int(counts[1])
+        if nv == 0:
+            raise _empty(p)
+        header, seen = lineno, 0
+        for lineno, words in lines:
+            if seen < nv and len(words) < 3:
+                raise bad(lineno, f"a vertex needs 3 coordinates, got {' '.join(words)!r}")
+            if nv <= seen < nv + nf:
+                k = int(words[0]) if words[0].isdigit() else -1
+                if k < 3 or len(words) < k + 1:
+                    got = " ".join(words)
+                    raise bad(
+                        lineno, f"expected 'k i1 ... ik' (k >= 3 vertex indices), got {got!r}"
+                    )
+            seen += 1
+            if seen == nv + nf:
+                return
+    raise InputError(
+        f"'{p}' could not be read as OFF: its header (line {header}) declares "
+        f"{_plural(nv, 'vertex', 'vertices')} and {_plural(nf, 'face')}, but only "
+        f"{_plural(seen, 'line')} of data follow; the file is truncated"
+    )
 
 
 def _trimesh_load(p: str, ext: str):

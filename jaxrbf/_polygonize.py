@@ -773,11 +773,8 @@ def polygonize(
     if narrow_band is None:
         narrow_band = max(shape) > _AUTO_BAND
     if narrow_band:
-        check_memory(
-            grid_memory(shape, True, coarsening, refine),
-            f"a narrow-band {'x'.join(map(str, shape))} grid",
-            "lower `resolution`",
-            avail=_available_memory(),
+        check_resolution(
+            resolution, hi - lo, narrow_band=True, coarsening=coarsening, refine=refine
         )
         sizes = _sizes(int(coarsening), int(refine))
         disable = (not sys.stderr.isatty()) if progress is None else not progress

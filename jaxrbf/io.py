@@ -457,13 +457,18 @@ def _strip_triangles(strip: np.ndarray) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
 
 
-def _ply_lists(data, key: str):
-    """The lists of property `key` of a PLY element as trimesh reads them: rows of a 2-D array,
-    or an object array of 1-D arrays."""
+def _ply_lists(data, key: str) -> list:
+    """The lists of property `key` of a PLY element as trimesh reads them (ASCII: rows of a 2-D
+    array or an object array of 1-D arrays; binary: (length, items) records); [] if absent."""
     a = data.get(key) if isinstance(data, dict) else None
     if a is None and data is not None and getattr(data, "dtype", None) is not None:
         a = data[key] if data.dtype.names and key in data.dtype.names else None
-    return [] if a is None else list(a)
+    if a is None:
+        return []
+    a = np.asarray(a) if not isinstance(a, np.ndarray) else a
+    if a.dtype.names and len(a.dtype.names) == 2:  # binary: (list length, items)
+        a = a[a.dtype.names[1]]
+    return list(a)
 
 
 def _ply_raw_length(element) -> int | None:
@@ -535,12 +540,8 @@ def _read_ply(p: str):
             faces = np.asarray(meshes[0].faces, dtype=np.int64)
     strips = raw.get("tristrips", {}).get("data")
     if strips is not None:
-        key = (
-            "vertex_indices"
-            if "vertex_indices" in (strips if isinstance(strips, dict) else {})
-            else "vertex_index"
-        )
-        tri = [_strip_triangles(s) for s in _ply_lists(strips, key)]
+        lists = _ply_lists(strips, "vertex_indices") or _ply_lists(strips, "vertex_index")
+        tri = [_strip_triangles(s) for s in lists]
         tri = [t for t in tri if len(t)]
         if tri:
             faces = np.concatenate(([faces] if faces is not None else []) + tri)

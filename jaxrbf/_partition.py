@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 from jaxtyping import Array, Float, Int
+from scipy.spatial import cKDTree
 
 from ._constraints import log, progress_bar
 from ._errors import InputError, SolveError
@@ -257,7 +258,6 @@ def make_patches(
 
     Only the first `lead` points (default: all) make leaves; the others (volume constraints
     away from the surface) join the fits of the patches whose balls hold them."""
-    from scipy.spatial import cKDTree
 
     n, _ = x.shape
     lead = n if lead is None else lead
@@ -494,8 +494,20 @@ def fit_partition(
         # third of the time CG takes at this size), whatever the
         # patches use: a Gaussian base would be as ill-conditioned as a dense Gaussian fit.
         base_kernel = "cubic" if xw.shape[1] == 3 else "thin-plate"
+        # `smoothing` is in the units of the patches' kernel (lambda scales as length^h): the
+        # same relative smoothing for the base's kernel, of homogeneity 3 (cubic) or 2. Taken as
+        # it is, a linear kernel's lambda is orders of magnitude too strong for r^3, and the
+        # base flattens into its linear polynomial, with the wrong sign over half the box.
+        base_h = 3 if xw.shape[1] == 3 else 2
+        base_smoothing = smoothing / scale**kernel.homogeneity * scale**base_h
         base = fit(
-            xw, h, kernel=base_kernel, degree=1, smoothing=smoothing, solver="lu", method="dense"
+            xw,
+            h,
+            kernel=base_kernel,
+            degree=1,
+            smoothing=base_smoothing,
+            solver="lu",
+            method="dense",
         )
         if verbose:
             log(
@@ -597,8 +609,11 @@ def _level_volume(volume, xw: np.ndarray, h: np.ndarray, *, base: bool, seed: in
     none = np.zeros((0, dim)), np.zeros(0)
     if volume is None or len(volume[1]) == 0:
         return none
-    spacing = point_spacing(xw[h == 0] if np.sum(h == 0) >= 2 else xw)
-    far = np.abs(volume[1])
+    surface = xw[h == 0] if np.sum(h == 0) >= 2 else xw
+    spacing = point_spacing(surface)
+    # the distance to this level's surface samples (not |value|: over a hole a probe's value is
+    # its distance to the winding number's closing surface, small however far the data are)
+    far, _ = cKDTree(surface).query(volume[0], workers=-1)
     keep = far >= VOLUME_NEAR * spacing
     if not base:
         keep &= far <= VOLUME_FAR * spacing
@@ -614,8 +629,6 @@ def surface_of(xw: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray] |
     `Constraints.from_points`), or None when `xw`, `h` do not look like that (plain scattered
     data): fewer than a fifth of the values zero, or off-surface points whose nearest surface
     point is not at distance |h|."""
-    from scipy.spatial import cKDTree
-
     on = h == 0
     if on.sum() < 0.2 * len(h) or on.all():
         return None

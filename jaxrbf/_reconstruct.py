@@ -349,10 +349,12 @@ def fit_surface_samples(
     up to 1.5% of the diagonal), and leaves them to a dense fit, whose one global interpolant
     continues the surrounding surface smoothly (right for a hole in a curved surface); True or
     False for either.
-    `volume` (3-D): volume constraints away from the samples, valued by their signed distance
-    with the sign of the samples' fast winding number (`jaxrbf.volume_constraints`), so that f
-    is positive outside and negative inside everywhere, not only near the data: an open,
-    multi-part or holed input then closes without balloons or stray sheets where the data stop.
+    `volume` (3-D): volume constraints away from the samples and around their boundaries,
+    signed by the samples' fast winding number and valued by the distance to the samples or to
+    the winding number's closing surface, whichever is nearer (`jaxrbf.volume_constraints`;
+    no probes around boundaries when the fit approximates a noisy cloud), so that f is positive
+    outside and negative inside everywhere, not only near the data: an open, multi-part or
+    holed input then closes across its holes, without balloons or stray sheets.
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
@@ -429,7 +431,7 @@ def fit_surface_samples(
         from ._winding import volume_constraints
 
         t0 = time.perf_counter()
-        vc = volume_constraints(p, n)
+        vc = volume_constraints(p, n, rims=not (denoise or smoothing))
         c = c.with_volume(vc.points, vc.values)
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")

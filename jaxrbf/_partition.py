@@ -609,11 +609,12 @@ def _level_volume(volume, xw: np.ndarray, h: np.ndarray, *, base: bool, seed: in
     none = np.zeros((0, dim)), np.zeros(0)
     if volume is None or len(volume[1]) == 0:
         return none
-    surface = xw[h == 0] if np.sum(h == 0) >= 2 else xw
-    spacing = point_spacing(surface)
-    # the distance to this level's surface samples (not |value|: over a hole a probe's value is
-    # its distance to the winding number's closing surface, small however far the data are)
-    far, _ = cKDTree(surface).query(volume[0], workers=-1)
+    spacing = point_spacing(xw[h == 0] if np.sum(h == 0) >= 2 else xw)
+    # By |value|: the nearer of the probe's distances to the samples and to the winding number's
+    # closing surface. The distance to this level's samples alone was tried (a probe over a hole
+    # then joins the level whose patches reach it): measured on a virtual range scan of the cow,
+    # Chamfer-L1 0.157% against 0.148% by |value|, and 0.293% against 0.290% on the bunny's.
+    far = np.abs(volume[1])
     keep = far >= VOLUME_NEAR * spacing
     if not base:
         keep &= far <= VOLUME_FAR * spacing

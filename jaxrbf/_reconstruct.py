@@ -343,18 +343,21 @@ def fit_surface_samples(
     `fill_holes` (3-D): where the samples leave a hole (a closed rim of boundary points, such as
     a scan's unseen base), membrane samples over the rim join the input (`jaxrbf.fill_holes`),
     so that the surface caps the hole flat instead of continuing the slopes at its rim; a line
-    on stderr says what was capped. "auto" (the default) caps holes for the partition of unity,
-    whose caps otherwise come from its coarse fallback levels (local fits extrapolated into the
-    hole, with kinks where one level hands over to the next; on the bunny's base they bulge by
-    up to 1.5% of the diagonal), and leaves them to a dense fit, whose one global interpolant
-    continues the surrounding surface smoothly (right for a hole in a curved surface); True or
-    False for either.
+    on stderr says what was capped. "auto" (the default) caps holes only for a partition of
+    unity fitted without volume constraints (`volume=False`), whose caps otherwise come from
+    its coarse fallback levels (local fits extrapolated into the hole, with kinks where one
+    level hands over to the next); the volume constraints' closing samples do that job by
+    default, for any shape of hole; True or False for either.
     `volume` (3-D): volume constraints away from the samples and around their boundaries,
     signed by the samples' fast winding number and valued by the distance to the samples or to
     the winding number's closing surface, whichever is nearer (`jaxrbf.volume_constraints`;
     no probes around boundaries when the fit approximates a noisy cloud), so that f is positive
     outside and negative inside everywhere, not only near the data: an open, multi-part or
-    holed input then closes across its holes, without balloons or stray sheets.
+    holed input then closes across its holes, without balloons or stray sheets. With them come
+    samples of the closing surface w = 1/2 itself, wherever it lies 3 spacings or more from the
+    samples (`jaxrbf._winding.closing_samples`), fitted like the input's own (but not returned
+    as samples, nor counted by the output's check): the fit then closes a hole where the
+    winding number does, a smooth membrane, instead of where its coarse levels extrapolate.
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
@@ -392,7 +395,13 @@ def fit_surface_samples(
     surface = np.asarray(c.points[: c.n_surface])
     method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)
     rebuild = False
-    if auto_flag(fill_holes, "fill_holes", method == "partition") and dim == 3:
+    volume = auto_flag(volume, "volume", True) and dim == 3
+    # The closing samples of the volume constraints close holes where the winding number does;
+    # the membrane caps of `fill_holes` (rims found and spanned by a heuristic) are for fits
+    # without them. Measured on a virtual range scan of the bunny (150k bare points, default
+    # command): 0.2115% / NC 0.9636 / precision 91.6% with the closing samples alone, 0.2129%
+    # / 0.9644 / 91.5% with the caps as well.
+    if auto_flag(fill_holes, "fill_holes", method == "partition" and not volume) and dim == 3:
         from ._holes import fill_holes as membrane_caps
 
         cap, cap_n, report = membrane_caps(p, n)
@@ -427,11 +436,19 @@ def fit_surface_samples(
             frac, rebuild = near, True
     if rebuild:
         c = Constraints.from_points(p, n, frac * diag)
-    if auto_flag(volume, "volume", True) and dim == 3:
+    if volume:
         from ._winding import volume_constraints
 
         t0 = time.perf_counter()
-        vc = volume_constraints(p, n, rims=not (denoise or smoothing))
+        vc = volume_constraints(p, n, rims=not (denoise or smoothing), close=True)
+        if len(vc.closing):
+            # fitted like samples; the samples returned (the meshing box, the output's check)
+            # stay the input's own
+            c = Constraints.from_points(
+                np.concatenate([p, vc.closing]),
+                np.concatenate([n, vc.closing_normals]),
+                frac * diag,
+            )
         c = c.with_volume(vc.points, vc.values)
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")

@@ -84,6 +84,12 @@ JUMP_SAMPLES = 2000
 RIM_CELL = 2.0
 RIM_REACH = 9.0
 RIM_SHELL = 1.5
+#: Closing samples (`closing_samples`): the level w = 1/2 is sampled once per cell of a lattice
+#: of CLOSE_CELL spacings, wherever it lies at least CLOSE_CLEAR spacings from every sample,
+#: grown from the undecided probes (at most CLOSE_MAX_CELLS cells looked at).
+CLOSE_CELL = 2.0
+CLOSE_CLEAR = 3.0
+CLOSE_MAX_CELLS = 2_000_000
 
 
 def sample_areas(points: np.ndarray, k: int = AREA_NEIGHBOURS, tree=None) -> np.ndarray:
@@ -236,12 +242,15 @@ def winding_number(
 class VolumeConstraints(NamedTuple):
     """Probe points away from the samples and their signed-distance values (see the module
     docstring). `undecided`: how many have a winding number within `RAMP` of 1/2 (over holes,
-    past open boundaries)."""
+    past open boundaries). `closing` / `closing_normals`: samples of the winding number's
+    closing surface where the data stop (`closing_samples`; empty unless asked for)."""
 
     points: np.ndarray
     values: np.ndarray
     undecided: int
     near_rims: int = 0
+    closing: np.ndarray = np.zeros((0, 3))
+    closing_normals: np.ndarray = np.zeros((0, 3))
 
     def summary(self) -> str:
         inside = int(np.sum(self.values < 0))
@@ -249,7 +258,7 @@ class VolumeConstraints(NamedTuple):
             f"inside/outside: {len(self.values):,} volume constraints from the winding number "
             f"({inside:,} inside, {len(self.values) - inside:,} outside; {self.near_rims:,} "
             f"around boundaries of the samples, {self.undecided:,} over holes or past open "
-            "boundaries)"
+            f"boundaries); {len(self.closing):,} samples of the closing surface w = 1/2"
         )
 
 
@@ -303,7 +312,12 @@ def _probe_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def volume_constraints(
-    points, normals, spacing: float | None = None, areas=None, rims: bool = True
+    points,
+    normals,
+    spacing: float | None = None,
+    areas=None,
+    rims: bool = True,
+    close: bool = False,
 ) -> VolumeConstraints:
     """Volume constraints for oriented 3-D samples (`points`, outward `normals`): octree probes
     away from the samples, the cells where w is near 1/2 refined down to the finest probe size,
@@ -313,7 +327,8 @@ def volume_constraints(
     noisy cloud, which a fit approximates: there the boundary test also fires on gaps in the
     noise, and probes a few spacings from a noisy surface pull the smoothed fit off it;
     measured on a virtual range scan of the bunny, the precision at 0.5% of the surface above
-    its base fell from 99.6% to 93.8% with them)."""
+    its base fell from 99.6% to 93.8% with them). `close`: also sample the closing surface
+    (`closing_samples`), seeded by the probes over holes and past open boundaries."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3 or nrm.shape != p.shape:
@@ -362,7 +377,110 @@ def volume_constraints(
     dist, _ = tree.query(probes, workers=-1)
     w, grad = winding_number(probes, None, None, tree=wtree, gradient=True)
     values = signed_values(w, grad, dist)
-    return VolumeConstraints(probes, values, int(np.sum(np.abs(w - 0.5) < RAMP)), len(near))
+    undecided = np.abs(w - 0.5) < RAMP
+    extra = ()
+    if close:
+        extra = closing_samples(p, probes[undecided], spacing, wtree, tree)
+    return VolumeConstraints(probes, values, int(np.sum(undecided)), len(near), *extra)
+
+
+_CORNERS = np.array(np.meshgrid(*[[0, 1]] * 3, indexing="ij")).reshape(3, -1).T  # (8, 3)
+_EDGES = np.array(
+    [(a, b) for a in range(8) for b in range(a + 1, 8) if np.sum(_CORNERS[a] != _CORNERS[b]) == 1]
+)  # the 12 edges of a cell, as corner pairs
+_NEIGHBOURS = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
+
+
+def _pack(keys: np.ndarray) -> np.ndarray:
+    """One int64 per lattice index triple (each within +/- 2^20)."""
+    k = keys.astype(np.int64) + (1 << 20)
+    return (k[..., 0] << 42) | (k[..., 1] << 21) | k[..., 2]
+
+
+def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKDTree):
+    """Oriented samples of the winding number's closing surface, the level w = 1/2, where it lies
+    at least `CLOSE_CLEAR` spacings from every sample: over holes, past open boundaries, between
+    the pieces of a soup. There the data say nothing, and w = 1/2 is the surface that screened
+    Poisson's indicator would close with (w is the harmonic field of the samples' dipoles): a
+    membrane across a hole, flat where the rim is, with no slope carried on from the rim's
+    neighbourhood. Given to the fit as ordinary samples, they make it close there and only there.
+
+    From `seeds` (points where w is near 1/2, such as the undecided probes), each moved onto
+    w = 1/2 by Newton steps along grad w, the cells of a lattice of `CLOSE_CELL` spacings that w
+    crosses 1/2 in are grown across the level from neighbour to neighbour (surface tracking
+    on the lattice: w is evaluated at the cells' corners only), and stop where the level comes
+    within `CLOSE_CLEAR` spacings of the samples (there it runs into the sampled surface, which
+    w passes 1/2 on as well). Each crossed cell gives one sample: the mean of its edges'
+    crossings, moved onto the level by one Newton step, with the outward normal -grad w / |grad w|.
+
+    **Returns:** `(samples, normals)`, (m, 3) arrays (m may be 0)."""
+    h = CLOSE_CELL * spacing
+    clear = CLOSE_CLEAR * spacing
+    lo, hi = _probe_box(points)
+    dims = np.ceil((hi - lo) / h).astype(np.int64)
+    empty = (np.zeros((0, 3)), np.zeros((0, 3)))
+    x = np.asarray(seeds, dtype=float).reshape(-1, 3)
+    for _ in range(3):  # Newton steps onto the level, each at most a few cells long
+        if len(x) == 0:
+            return empty
+        w, g = winding_number(x, None, None, tree=wtree, gradient=True)
+        step = ((w - 0.5) / np.maximum(np.sum(g * g, axis=1), 1e-300))[:, None] * g
+        length = np.linalg.norm(step, axis=1, keepdims=True)
+        x = x - step * np.minimum(1.0, 4 * h / np.maximum(length, 1e-300))
+        x = x[np.all((x > lo) & (x < hi), axis=1)]
+    if len(x) == 0:
+        return empty
+    active = np.unique(np.floor((x - lo) / h).astype(np.int64), axis=0)
+    seen = set(_pack(active).tolist())
+    values: dict[int, float] = {}
+    found, looked = [], 0
+    while len(active) and looked < CLOSE_MAX_CELLS:
+        looked += len(active)
+        corners = active[:, None, :] + _CORNERS[None]  # (m, 8, 3)
+        keys = _pack(corners)
+        flat = np.unique(keys)
+        new = np.array([k not in values for k in flat.tolist()], dtype=bool)
+        if new.any():
+            k = flat[new]
+            ijk = np.stack([(k >> 42) & 0x1FFFFF, (k >> 21) & 0x1FFFFF, k & 0x1FFFFF], 1)
+            wk = winding_number(lo + (ijk - (1 << 20)) * h, None, None, tree=wtree)
+            values.update(zip(k.tolist(), wk.tolist(), strict=True))
+        s = np.array([values[k] for k in keys.ravel().tolist()]).reshape(keys.shape) - 0.5
+        crossed = (s.min(axis=1) < 0) & (s.max(axis=1) > 0)
+        cells, s = active[crossed], s[crossed]
+        if len(cells) == 0:
+            break
+        a, b = s[:, _EDGES[:, 0]], s[:, _EDGES[:, 1]]  # (m, 12)
+        cut = (a < 0) != (b < 0)
+        t = np.where(cut, a / np.where(cut, a - b, 1.0), 0.0)
+        ends = lo + (cells[:, None, None, :] + _CORNERS[_EDGES][None]) * h  # (m, 12, 2, 3)
+        pts = ends[:, :, 0] + t[..., None] * (ends[:, :, 1] - ends[:, :, 0])
+        centre = np.sum(pts * cut[..., None], axis=1) / np.sum(cut, axis=1, keepdims=True)
+        dist, _ = tree.query(centre, workers=-1, distance_upper_bound=clear)
+        far = dist >= clear
+        found.append(centre[far])
+        # grow across the level from the cells clear of the samples
+        grow = (cells[far][:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3)
+        grow = grow[np.all((grow >= 0) & (grow < dims), axis=1)]
+        grow = np.unique(grow, axis=0)
+        packed = _pack(grow)
+        fresh = np.array([k not in seen for k in packed.tolist()], dtype=bool)
+        active = grow[fresh]
+        seen.update(packed[fresh].tolist())
+    if not found:
+        return empty
+    x = np.concatenate(found)
+    if len(x) == 0:
+        return empty
+    w, g = winding_number(x, None, None, tree=wtree, gradient=True)
+    g2 = np.maximum(np.sum(g * g, axis=1), 1e-300)
+    step = ((w - 0.5) / g2)[:, None] * g
+    ok = np.linalg.norm(step, axis=1) < h  # a cell's mean crossing is within a cell of the level
+    x = x[ok] - step[ok]
+    n = -g[ok] / np.sqrt(g2[ok])[:, None]
+    dist, _ = tree.query(x, workers=-1, distance_upper_bound=clear)
+    keep = dist >= clear
+    return x[keep], n[keep]
 
 
 def calibrated_areas(points, normals, *, tree=None, spacing=None, rim=None) -> np.ndarray:

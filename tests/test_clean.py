@@ -112,3 +112,19 @@ def test_strays_a_few_spacings_off_the_surface_are_removed():
     assert rep.off_plane > 0 and "from its plane" in rep.summary()
     with pytest.raises(jaxrbf.InputError, match="plane_ratio"):
         jaxrbf.remove_outliers(pts, plane_ratio=-1.0)
+
+
+def test_a_sparse_stretch_of_surface_is_not_taken_for_outliers():
+    # a real scan's density varies several-fold (distance to the scanner, oblique views): the
+    # global test alone drops whole sparse stretches; strays in the volume still go
+    rng = np.random.default_rng(2)
+    dense = np.c_[rng.uniform(0, 1, (20000, 2)), 0.001 * rng.standard_normal(20000)]
+    sparse = np.c_[rng.uniform(1, 1.5, (800, 1)), rng.uniform(0, 1, (800, 1)), np.zeros(800)]
+    strays = rng.uniform([0, 0, 0.2], [1.5, 1, 1.0], (20, 3))
+    pts = np.vstack([dense, sparse, strays])
+    kept, _, rep = jaxrbf.remove_outliers(pts)
+    old, _, _ = jaxrbf.remove_outliers(pts, flat_ratio=None)
+    on_sparse = lambda q: np.sum((q[:, 0] > 1) & (np.abs(q[:, 2]) < 0.01))  # noqa: E731
+    assert on_sparse(old) < 0.85 * len(sparse)  # the density-biased test alone loses them
+    assert on_sparse(kept) >= 0.98 * len(sparse)
+    assert np.sum(kept[:, 2] > 0.1) == 0  # strays still dropped

@@ -161,7 +161,9 @@ def test_load_rejects_corrupt_partition(models, tmp_path):
     data["level0.patch_table"] = data["level0.patch_table"] + 10**6
     bad = tmp_path / "bad.npz"
     np.savez(bad, **data)
-    with pytest.raises(InputError, match="damaged jaxrbf model: field `level0.patch_table` holds 1000124, outside"):
+    with pytest.raises(
+        InputError, match="damaged jaxrbf model: field `level0.patch_table` holds 1000124, outside"
+    ):
         jaxrbf.load(bad)
     del data["level1.patch_origin"]
     np.savez(bad, **data)

@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from jaxrbf._errors import InputError
 from jaxrbf._reconstruct import fit_surface_samples, mesh_fit
 from jaxrbf._winding import (
+    CLOSE_CLEAR,
     calibrated_areas,
     sample_areas,
     unit_jump,
@@ -107,6 +108,30 @@ def test_volume_constraints_span_a_hole_where_the_winding_number_is_one_half():
     z, v = vc.points[over, 2], vc.values[over]
     assert vc.undecided > 0 and np.any(v > 0) and np.any(v < 0)
     assert np.all(v[z > 0.75] > 0) and np.all(v[z < 0.35] < 0)
+
+
+def test_closing_samples_lie_on_a_holes_closing_surface_and_face_out():
+    # a sphere with its cap z > 0.5 removed: the closing surface spans the hole near the rim's
+    # plane (w = 1/2 there), clear of the samples, with outward (+z) normals; a closed sphere
+    # has none
+    p = _sphere(12000)
+    p = p[p[:, 2] < 0.5][:3000]
+    spacing = np.median(cKDTree(p).query(p, k=2)[0][:, 1])
+    vc = volume_constraints(p, p, close=True)
+    c, cn = vc.closing, vc.closing_normals
+    assert len(c) > 20 and "samples of the closing surface" in vc.summary()
+    # inside the sphere, by the rim's plane (measured: median 0.490, 5% below 0.477; near the
+    # rim the level bends down a little, by 0.15 at most)
+    assert np.all(np.linalg.norm(c, axis=1) < 1) and np.all(np.abs(c[:, 2] - 0.5) < 0.2)
+    assert abs(np.median(c[:, 2]) - 0.5) < 0.02 and np.mean(np.abs(c[:, 2] - 0.5) < 0.05) > 0.9
+    assert np.all(cKDTree(p).query(c)[0] >= CLOSE_CLEAR * spacing * 0.999)
+    assert np.allclose(np.linalg.norm(cn, axis=1), 1) and np.all(cn[:, 2] > 0.3)
+    assert np.median(cn[:, 2]) > 0.95
+    # the hole's middle is covered, not only its edge
+    assert np.min(np.linalg.norm(c[:, :2], axis=1)) < 0.15
+    closed = _sphere(3000)
+    assert len(volume_constraints(closed, closed, close=True).closing) == 0
+    assert len(volume_constraints(p, p).closing) == 0  # only when asked
 
 
 def _disc(rng, c, nrm, r, n):

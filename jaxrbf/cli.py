@@ -96,9 +96,10 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         "--holes",
         choices=("auto", "fill", "keep"),
         default="auto",
-        help="3-D: cap the holes of the samples (closed rims of boundary points) with membrane "
-        "samples before fitting (fill), or leave them to the fit, which closes them along the "
-        "slopes at their rims (keep); auto (default): fill for the partition method only",
+        help="3-D: also cap the holes of the samples (closed rims of boundary points) with "
+        "membrane samples before fitting (fill), or not (keep); auto (default): keep, since the "
+        "volume constraints close every hole on the winding number's closing surface (fill "
+        "only for a partition fitted without them)",
     )
     g.add_argument(
         "--denoise",

@@ -123,6 +123,7 @@ def test_gradient_flows_through_a_fit_over_a_background():
     assert abs(g) > 1e-6
 
 
+@pytest.mark.slow
 def test_surface_paths_add_it_for_decaying_kernels_only():
     # tune (its objective, its final fit) and fit_surface put a Gaussian fit over the
     # background of the samples by default, and its far field has the right sign; a cubic or

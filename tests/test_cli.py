@@ -17,6 +17,7 @@ def run(capsys, *argv):
     return code, out, err
 
 
+@pytest.mark.slow
 def test_reconstruct_fit_mesh_evaluate_on_spot(tmp_path, capsys):
     spot = data_file("spot.obj")
     out = tmp_path / "spot.ply"
@@ -192,6 +193,7 @@ def test_console_script_entry_point(tmp_path):
     assert not (tmp_path / "o.ply").exists()
 
 
+@pytest.mark.slow
 def test_method_option_partition_fit_mesh(tmp_path, capsys, monkeypatch):
     """`--method partition` through the CLI: the model is saved, reloaded and meshed."""
     from jaxrbf import _partition

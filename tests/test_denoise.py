@@ -30,6 +30,7 @@ def ellipsoid_distance(x):
     return np.abs(q - 1) / np.linalg.norm(grad, axis=1)
 
 
+@pytest.mark.slow
 def test_noise_gets_smoothing_and_clean_input_does_not():
     clean, n_clean = ellipsoid_cloud(2000, 0.0)
     noisy, _ = ellipsoid_cloud(2000, 0.01)
@@ -66,6 +67,7 @@ def test_every_lambda_from_one_eigendecomposition_matches_the_held_out_error():
         assert np.isclose(per_point[:, i].mean(), ref, rtol=1e-5), (i, per_point[:, i].mean(), ref)
 
 
+@pytest.mark.slow
 def test_choice_is_the_largest_lambda_within_one_standard_error():
     noisy, true = ellipsoid_cloud(1500, 0.008, seed=5)
     r = jaxrbf.choose_smoothing(noisy, true, offset=0.02, crops=2, crop_points=600)
@@ -78,6 +80,7 @@ def test_choice_is_the_largest_lambda_within_one_standard_error():
     assert 0 < r.standard_error < obj[best]
 
 
+@pytest.mark.slow
 def test_denoised_fit_is_nearer_the_true_surface():
     noisy, true = ellipsoid_cloud(2000, 0.01, seed=1)
     plain = jaxrbf.fit_surface(noisy, true, offset=0.02, denoise=False)  # (default: "auto")
@@ -110,6 +113,7 @@ def test_denoise_bad_input():
         jaxrbf.choose_smoothing(p[:20], n[:20], offset=0.01)
 
 
+@pytest.mark.slow
 def test_raw_scan_end_to_end(tmp_path, capsys):
     """A bare, noisy point cloud of an ellipsoid with a hole and outliers, from the command line:
     normals estimated, outliers dropped, noise smoothed, the hole closed."""
@@ -243,6 +247,7 @@ def test_noise_estimate_bad_input():
 # --- the lambda grid ------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_grid_reaches_past_the_old_top_and_extends_from_its_top():
     from jaxrbf import _denoise
 

@@ -197,6 +197,7 @@ def _crease_edges(v, f, degrees: float = 30.0):
     return e[i[cos < np.cos(np.radians(degrees))]]
 
 
+@pytest.mark.slow
 def test_fandisk_creases_found():
     mesh = jaxrbf.io.read_mesh(data_file("fandisk.obj"))
     v, f = mesh.vertices, mesh.faces

@@ -23,6 +23,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kernel, radius", CASES)
 def test_matches_scipy_rbfinterpolator(kernel, radius):
     model = jaxrbf.fit(X, Y, kernel=kernel, radius=radius)
@@ -36,6 +37,7 @@ def test_matches_scipy_rbfinterpolator(kernel, radius):
     np.testing.assert_allclose(np.asarray(model(Q)), ref(Q), atol=1e-7 * np.abs(Y).max())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["lu", "cholesky", "cg", "gmres"])
 @pytest.mark.parametrize("kernel, radius", CASES + [("wendland", 1.2)])
 def test_interpolates_its_constraints(solver, kernel, radius):

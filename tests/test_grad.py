@@ -37,6 +37,7 @@ def _loss(offset, radius, smoothing, points=P, normals=N, solver="lu", kernel="g
     return jnp.sum(model(Q) ** 2) + jnp.sum(model.gradient(Q[:5]) ** 2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["lu", "cholesky"])
 def test_dense_gradients_match_finite_differences(solver):
     args = (0.1, 0.7, 1e-4)
@@ -48,6 +49,7 @@ def test_dense_gradients_match_finite_differences(solver):
     assert np.all(np.abs(np.asarray(g)) > 1e-6)  # every parameter actually moves the loss
 
 
+@pytest.mark.slow
 def test_gradients_wrt_points_normals_and_values():
     idx = (3, 1)  # one coordinate of one surface point, and of its normal
 
@@ -114,6 +116,7 @@ def torus_constraints():
     return jaxrbf.Constraints.from_points(p, n, 0.05)
 
 
+@pytest.mark.slow
 def test_partition_gradients(torus_constraints, monkeypatch):
     monkeypatch.setattr(_partition, "BASE_SIZE", 250)
     c = torus_constraints

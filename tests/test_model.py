@@ -30,6 +30,7 @@ def test_gradient_matches_finite_differences(which, request):
         np.testing.assert_allclose(gp, fd_gradient(lambda y: model(y), p), rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(jaxrbf.kernels.KERNELS))
 @pytest.mark.parametrize("degree", [0, 1])
 def test_analytic_gradient_matches_autodiff(name, degree):

@@ -51,6 +51,7 @@ def assert_same_mesh(dense, band):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "f, bounds, resolution, genus",
     [

@@ -36,6 +36,7 @@ def models(torus_constraints):
     return pu, dense
 
 
+@pytest.mark.slow
 def test_structure(models, torus_constraints):
     pu, _ = models
     assert isinstance(pu, PartitionModel)
@@ -94,6 +95,7 @@ def _border_points(pu: PartitionModel, count: int = 40, seed: int = 0):
     return o + r[:, None] * u, u
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("eps", [1e-5, 1e-6])
 def test_continuous_across_patch_borders(models, eps):
     """f and grad f just inside and just outside a patch's ball differ by O(eps): no seams."""
@@ -112,6 +114,7 @@ def test_continuous_across_patch_borders(models, eps):
     assert np.max(np.linalg.norm(g_out - g_in, axis=1)) < 1e4 * eps * gscale
 
 
+@pytest.mark.slow
 def test_continuous_where_the_fallback_takes_over(models):
     """Along rays leaving the data, f stays smooth through W = tau (the hand-over to the coarser
     model): no jumps in sampled values beyond what the gradient allows."""
@@ -133,6 +136,7 @@ def test_continuous_where_the_fallback_takes_over(models):
     assert float(jnp.min(w)) < TAU
 
 
+@pytest.mark.slow
 def test_gradient_is_outward_normal(models):
     pu, _ = models
     p, n = torus(48, 20)
@@ -171,6 +175,7 @@ def test_load_rejects_corrupt_partition(models, tmp_path):
         jaxrbf.load(bad)
 
 
+@pytest.mark.slow
 def test_auto_method_choice(torus_constraints, monkeypatch, capsys):
     small = jaxrbf.fit(torus_constraints, verbose=True)
     assert isinstance(small, jaxrbf.RBFModel)
@@ -199,6 +204,7 @@ def test_memory_refused_before_start(torus_constraints, monkeypatch):
         jaxrbf.fit(torus_constraints, method="partition")
 
 
+@pytest.mark.slow
 def test_other_kernels(torus_constraints, monkeypatch):
     monkeypatch.setattr(_partition, "BASE_SIZE", 400)
     for kernel, radius in (("wendland", 1.0), ("thin-plate", None)):
@@ -207,6 +213,7 @@ def test_other_kernels(torus_constraints, monkeypatch):
         assert np.max(np.abs(f - np.asarray(torus_constraints.values))) < 1e-8, kernel
 
 
+@pytest.mark.slow
 def test_2d_partition(monkeypatch):
     monkeypatch.setattr(_partition, "BASE_SIZE", 200)
     t = np.linspace(0, 2 * np.pi, 400, endpoint=False)
@@ -221,6 +228,7 @@ def test_2d_partition(monkeypatch):
     assert np.max(np.abs(r - 1)) < 0.02
 
 
+@pytest.mark.slow
 def test_bulk_evaluation_matches_gathered(models):
     """The patch-by-patch evaluator (concrete inputs of >= BULK_MIN points, and polygonize) gives
     the values and gradients of the gathered evaluation traced under jit: near the surface, in
@@ -289,6 +297,7 @@ def test_coarse_levels_rebuilt_with_their_own_offset(monkeypatch):
     assert np.all(np.sign(np.asarray(pu(far[keep]))) == np.sign(r[keep] - 1))
 
 
+@pytest.mark.slow
 def test_coverage_marks_the_data(models, torus_constraints):
     # The finest level's weight sum is the blend's own: >= TAU at every surface sample, and 0
     # far from the torus (its hole's centre and outside the box), as the gathered blend says.

@@ -79,6 +79,7 @@ def rasterise(mesh, camera):
     return mask
 
 
+@pytest.mark.slow
 def test_reconstructed_mesh_silhouette_matches_the_original(tmp_path):
     path = data_file("spot.obj")
     model = jaxrbf.fit_surface(str(path), points=1000)
@@ -170,6 +171,7 @@ def run(capsys, *argv):
     return code, out, err
 
 
+@pytest.mark.slow
 def test_cli_render_and_preview(tmp_path, capsys):
     p, n = sphere(200, radius=0.5)
     src = tmp_path / "ball.xyz"

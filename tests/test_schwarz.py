@@ -90,6 +90,7 @@ def test_preconditioner_is_symmetric_positive_definite():
     assert ev_pc[-1] / ev_pc[0] < 1e-3 * ev_c[-1] / ev_c[0]
 
 
+@pytest.mark.slow
 def test_preconditioner_cuts_iterations():
     kernel, x, h, s, degree, d = _torus_system(leaf=300)
     pre = solve_system(kernel, x, h, s, degree, "cg", 1e-10, 2000, d)
@@ -102,6 +103,7 @@ def test_preconditioner_cuts_iterations():
 # --- through fit -----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "solver, kernel, radius",
     [

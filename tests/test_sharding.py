@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 SCRIPT = r"""
 import os
@@ -75,6 +76,7 @@ def _finish(proc, out) -> dict:
     return dict(np.load(out))
 
 
+@pytest.mark.slow
 def test_sharded_matches_unsharded(tmp_path):
     # all at once: most of each run is JAX's start and XLA's compilation
     port = _free_port()

@@ -30,6 +30,7 @@ def test_loocv_matches_brute_force():
     np.testing.assert_allclose(np.asarray(fast) * np.sqrt(len(x)), errors, rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_held_out_and_kfold():
     a = objectives.held_out_error(P, N, kernel="cubic", offset=0.05)
     assert 0 < float(a) < 0.2  # a sphere's held-out samples lie close to the fitted zero set
@@ -48,6 +49,7 @@ def test_held_out_and_kfold():
     assert float(k) == pytest.approx(np.mean(each), rel=1e-10)
 
 
+@pytest.mark.slow
 def test_objective_gradients_match_finite_differences():
     f = lambda a: objectives.held_out_error(  # noqa: E731
         P, N, kernel="gaussian", offset=a[0], radius=a[1]
@@ -61,6 +63,7 @@ def test_objective_gradients_match_finite_differences():
         assert g[k] == pytest.approx(fd, rel=1e-4, abs=1e-7)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "kernel, names, background",
     [
@@ -117,6 +120,7 @@ def test_adjoint_value_and_grad_matches_forward_mode(kernel, names, background):
     assert float(f2) == pytest.approx(float(direct(y_edge)), rel=1e-10)
 
 
+@pytest.mark.slow
 def test_tune_fast_path_follows_forward_mode():
     # tune's held-out objective (adjoint gradient, one compiled function cached across calls)
     # and the same objective as a user function (forward mode, compiled per call) take the same

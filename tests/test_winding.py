@@ -151,6 +151,7 @@ def _surface_distances(mesh, points, n=20000):
     return cKDTree(points).query(q)[0]
 
 
+@pytest.mark.slow
 def test_a_soup_of_open_pieces_gives_a_surface_near_every_piece_and_no_balloons():
     rng = np.random.default_rng(0)
     t = rng.uniform(0, 2 * np.pi, 600)
@@ -173,6 +174,7 @@ def test_a_soup_of_open_pieces_gives_a_surface_near_every_piece_and_no_balloons(
     assert np.mean(d < 0.03 * diag) > 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [1500, 6000])  # the dense method, and the partition of unity
 def test_an_open_hemisphere_closes_flat_at_its_rim(n):
     p = _hemisphere(n)
@@ -192,6 +194,7 @@ def test_an_open_hemisphere_closes_flat_at_its_rim(n):
     assert np.linalg.norm(v[:, :2], axis=1).max() < 1.03
 
 
+@pytest.mark.slow
 def test_an_open_tube_closes_across_its_ends_not_beyond_them():
     # a tube's open ends: without probes by the rims, the fit continues the tube past each rim
     # and rounds it off there (measured: 0.041 past the rims of this 0.3-radius tube; 0.017 with)
@@ -204,6 +207,7 @@ def test_an_open_tube_closes_across_its_ends_not_beyond_them():
     assert np.linalg.norm(v[:, :2], axis=1).max() < 0.32
 
 
+@pytest.mark.slow
 def test_a_noisy_sphere_with_the_default_options_gives_a_mesh_within_the_noise():
     rng = np.random.default_rng(3)
     p = _sphere(3000, seed=3) * (1 + 0.01 * rng.standard_normal((3000, 1)))  # 1% of the radius
@@ -215,6 +219,7 @@ def test_a_noisy_sphere_with_the_default_options_gives_a_mesh_within_the_noise()
     assert np.mean(np.abs(np.asarray(model(samples)))) > 1e-3
 
 
+@pytest.mark.slow
 def test_an_output_that_misses_its_input_is_refused():
     from jaxrbf import SolveError
 

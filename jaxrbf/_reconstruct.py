@@ -434,24 +434,24 @@ def fit_surface_samples(
                     "point spacings) instead of the default, so that patches hold off-surface points"
                 )
             frac, rebuild = near, True
-    if rebuild:
-        c = Constraints.from_points(p, n, frac * diag)
+    fitted_p, fitted_n, vc = p, n, None
     if volume:
         from ._winding import volume_constraints
 
         t0 = time.perf_counter()
         vc = volume_constraints(p, n, rims=not (denoise or smoothing), close=True)
+        if verbose:
+            log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
         if len(vc.closing):
             # fitted like samples; the samples returned (the meshing box, the output's check)
             # stay the input's own
-            c = Constraints.from_points(
-                np.concatenate([p, vc.closing]),
-                np.concatenate([n, vc.closing_normals]),
-                frac * diag,
-            )
+            fitted_p = np.concatenate([p, vc.closing])
+            fitted_n = np.concatenate([n, vc.closing_normals])
+            rebuild = True
+    if rebuild:  # once, whatever asked for it
+        c = Constraints.from_points(fitted_p, fitted_n, frac * diag)
+    if vc is not None:
         c = c.with_volume(vc.points, vc.values)
-        if verbose:
-            log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
     if verbose:
         log(c.report())
     if denoise:

@@ -442,6 +442,10 @@ def fit_surface_samples(
         vc = volume_constraints(p, n, rims=not (denoise or smoothing), close=True)
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
+        if vc.buried.any():
+            # walls inside the solid: neither fitted nor owed a surface by the output's check
+            p, n, rebuild = p[~vc.buried], n[~vc.buried], True
+        fitted_p, fitted_n = p, n
         if len(vc.closing):
             # fitted like samples; the samples returned (the meshing box, the output's check)
             # stay the input's own

@@ -90,6 +90,9 @@ RIM_SHELL = 1.5
 CLOSE_CELL = 2.0
 CLOSE_CLEAR = 3.0
 CLOSE_MAX_CELLS = 2_000_000
+#: A sample is buried when w reads above `BURIED_LEVEL` at `BURIED_SPACINGS` spacings along its
+#: normal and as far against it (`buried_samples`).
+BURIED_SPACINGS, BURIED_LEVEL = 4.0, 0.6
 
 
 def sample_areas(points: np.ndarray, k: int = AREA_NEIGHBOURS, tree=None) -> np.ndarray:
@@ -251,6 +254,7 @@ class VolumeConstraints(NamedTuple):
     near_rims: int = 0
     closing: np.ndarray = np.zeros((0, 3))
     closing_normals: np.ndarray = np.zeros((0, 3))
+    buried: np.ndarray = np.zeros(0, dtype=bool)
 
     def summary(self) -> str:
         inside = int(np.sum(self.values < 0))
@@ -259,6 +263,11 @@ class VolumeConstraints(NamedTuple):
             f"({inside:,} inside, {len(self.values) - inside:,} outside; {self.near_rims:,} "
             f"around boundaries of the samples, {self.undecided:,} over holes or past open "
             f"boundaries); {len(self.closing):,} samples of the closing surface w = 1/2"
+            + (
+                f"; {int(self.buried.sum()):,} buried samples (inside on both sides) left out"
+                if self.buried.any()
+                else ""
+            )
         )
 
 
@@ -348,6 +357,7 @@ def volume_constraints(
     if areas is None:
         areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, np.asarray(areas))
+    buried = buried_samples(p, nrm, spacing, wtree) if close else np.zeros(len(p), dtype=bool)
     w = winding_number(probes, None, None, tree=wtree)
     finest *= 1.01
     lo, hi = _probe_box(p)
@@ -374,14 +384,37 @@ def volume_constraints(
     near = rim_probes(p[rim] if rims else p[:0], spacing, reach, tree)
     near = near[np.all((near >= lo) & (near <= hi), axis=1)]
     probes = np.concatenate([probes, near])
-    dist, _ = tree.query(probes, workers=-1)
+    # distances to the samples the fit keeps (a buried sample is no surface to measure from)
+    kept = cKDTree(p[~buried]) if buried.any() else tree
+    dist, _ = kept.query(probes, workers=-1)
     w, grad = winding_number(probes, None, None, tree=wtree, gradient=True)
     values = signed_values(w, grad, dist)
     undecided = np.abs(w - 0.5) < RAMP
     extra = ()
     if close:
-        extra = closing_samples(p, probes[undecided], spacing, wtree, tree)
+        extra = (*closing_samples(p, probes[undecided], spacing, wtree, tree), buried)
     return VolumeConstraints(probes, values, int(np.sum(undecided)), len(near), *extra)
+
+
+def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.ndarray:
+    """Which samples are buried: w reads inside (above `BURIED_LEVEL`) `BURIED_SPACINGS`
+    spacings out along the sample's normal and as far in against it. Such a sample lies inside
+    the solid on both of its sides: a wall inside another piece (where a teapot's spout pierces
+    its body, an eyeball sunk in its socket, a scan's inner layer). The closed surface the fit
+    makes cannot pass through it without a bubble (f would be 0 there and negative on both sides),
+    so the fit leaves it out, and closes the pieces' union as Poisson's indicator does.
+
+    Why 4 spacings and 0.6: nearer than a few spacings the sum over discrete samples is rough
+    (see `unit_jump`), and on a noisy scan the test fires on the noise. Counted with the
+    estimated normals of a virtual range scan of the bunny (150k points, 0.15% noise): 551 of
+    the samples read above 1/2 on both sides at 2 spacings, 25 at 3, none at 4. On a teapot
+    sampled with its true normals (the spout, an open tube, pierces the body) the count at 4
+    spacings is 250 / 238 / 216 for levels 0.5 / 0.6 / 0.7: stable, where at 2 spacings it is
+    304 / 243 / 125 (w inside an open tube near its end reads about 0.7)."""
+    step = BURIED_SPACINGS * spacing * normals
+    ahead = winding_number(points + step, None, None, tree=wtree)
+    behind = winding_number(points - step, None, None, tree=wtree)
+    return (ahead > BURIED_LEVEL) & (behind > BURIED_LEVEL)
 
 
 _CORNERS = np.array(np.meshgrid(*[[0, 1]] * 3, indexing="ij")).reshape(3, -1).T  # (8, 3)

@@ -410,11 +410,17 @@ def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.nd
     the samples read above 1/2 on both sides at 2 spacings, 25 at 3, none at 4. On a teapot
     sampled with its true normals (the spout, an open tube, pierces the body) the count at 4
     spacings is 250 / 238 / 216 for levels 0.5 / 0.6 / 0.7: stable, where at 2 spacings it is
-    304 / 243 / 125 (w inside an open tube near its end reads about 0.7)."""
-    step = BURIED_SPACINGS * spacing * normals
-    ahead = winding_number(points + step, None, None, tree=wtree)
-    behind = winding_number(points - step, None, None, tree=wtree)
-    return (ahead > BURIED_LEVEL) & (behind > BURIED_LEVEL)
+    304 / 243 / 125 (w inside an open tube near its end reads about 0.7).
+
+    Cost: one evaluation of w per sample, a second only behind those that face the inside
+    (about 10 s for 150,000 samples on 2 cores; testing one sample in 8 first and growing from
+    those found buried missed 37 of the teapot's 238 and 56 of suzanne's 302)."""
+    points = np.asarray(points, dtype=float)
+    step = BURIED_SPACINGS * spacing * np.asarray(normals, dtype=float)
+    buried = winding_number(points + step, None, None, tree=wtree) > BURIED_LEVEL
+    idx = np.flatnonzero(buried)
+    buried[idx] = winding_number(points[idx] - step[idx], None, None, tree=wtree) > BURIED_LEVEL
+    return buried
 
 
 _CORNERS = np.array(np.meshgrid(*[[0, 1]] * 3, indexing="ij")).reshape(3, -1).T  # (8, 3)

@@ -316,7 +316,8 @@ def fit_surface_samples(
     verbose: bool = False,
 ) -> tuple[AbstractModel, np.ndarray, np.ndarray]:
     """Constraints from `source` (see `constraints_from`), then `fit`: `(model, points,
-    normals)`, the points and normals being the surface samples fitted (hole caps included).
+    normals)`, the points and normals being the surface samples fitted (hole caps included,
+    buried samples left out), which the output must account for.
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper,
     but to `linear` (r) for a 3-D partition of unity of 50,000 samples or more (`default_kernel`
@@ -358,6 +359,8 @@ def fit_surface_samples(
     samples (`jaxrbf._winding.closing_samples`), fitted like the input's own (but not returned
     as samples, nor counted by the output's check): the fit then closes a hole where the
     winding number does, a smooth membrane, instead of where its coarse levels extrapolate.
+    Samples with the inside on both of their sides (`jaxrbf._winding.buried_samples`: walls
+    inside another piece) are left out of the fit and of the samples returned.
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+import jaxrbf._winding as winding
 from jaxrbf._errors import InputError
 from jaxrbf._reconstruct import fit_surface_samples, mesh_fit
 from jaxrbf._winding import (
@@ -143,7 +144,7 @@ def _two_spheres(n):
     return np.concatenate([a, b]), np.concatenate([a, b - [1.2, 0, 0]])
 
 
-def test_samples_inside_another_piece_are_buried_and_left_out_of_the_fit():
+def test_samples_inside_another_piece_are_buried_and_left_out_of_the_fit(monkeypatch):
     p, n = _two_spheres(3000)
     inner = (np.linalg.norm(p, axis=1) < 0.999) | (np.linalg.norm(p - [1.2, 0, 0], axis=1) < 0.999)
     tree = cKDTree(p)
@@ -156,6 +157,9 @@ def test_samples_inside_another_piece_are_buried_and_left_out_of_the_fit():
     assert buried[inner & ~seam].mean() > 0.95
     vc = volume_constraints(p, n, close=True)
     assert np.array_equal(vc.buried, buried) and "buried samples" in vc.summary()
+    # past BURIED_TESTED samples, a subset is tested and grown from: the same walls
+    monkeypatch.setattr(winding, "BURIED_TESTED", 1000)
+    assert np.array_equal(buried_samples(p, n, spacing, wtree), buried)
     assert not volume_constraints(_sphere(2000), _sphere(2000), close=True).buried.any()
 
 

@@ -360,7 +360,8 @@ def fit_surface_samples(
     as samples, nor counted by the output's check): the fit then closes a hole where the
     winding number does, a smooth membrane, instead of where its coarse levels extrapolate.
     Samples with the inside on both of their sides (`jaxrbf._winding.buried_samples`: walls
-    inside another piece) are left out of the fit and of the samples returned.
+    inside another piece) are left out of the fit and of the samples returned, unless the fit
+    approximates a noisy cloud.
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
@@ -442,7 +443,11 @@ def fit_surface_samples(
         from ._winding import volume_constraints
 
         t0 = time.perf_counter()
-        vc = volume_constraints(p, n, rims=not (denoise or smoothing), close=True)
+        # A noisy cloud, which the fit approximates, keeps every sample: there the buried test
+        # also fires in gaps narrower than its 4 spacings (on a real scan of a machine part, 6
+        # samples, whose removal grew 1.4% more surface far from the data).
+        exact = not (denoise or smoothing)
+        vc = volume_constraints(p, n, rims=exact, close=True, bury=exact)
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
         if vc.buried.any():

@@ -330,6 +330,7 @@ def volume_constraints(
     areas=None,
     rims: bool = True,
     close: bool = False,
+    bury: bool | None = None,
 ) -> VolumeConstraints:
     """Volume constraints for oriented 3-D samples (`points`, outward `normals`): octree probes
     away from the samples, the cells where w is near 1/2 refined down to the finest probe size,
@@ -340,7 +341,8 @@ def volume_constraints(
     noise, and probes a few spacings from a noisy surface pull the smoothed fit off it;
     measured on a virtual range scan of the bunny, the precision at 0.5% of the surface above
     its base fell from 99.6% to 93.8% with them). `close`: also sample the closing surface
-    (`closing_samples`), seeded by the probes over holes and past open boundaries."""
+    (`closing_samples`), seeded by the probes over holes and past open boundaries. `bury`: also
+    find the buried samples (`buried_samples`; default: with `close`)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3 or nrm.shape != p.shape:
@@ -360,7 +362,8 @@ def volume_constraints(
     if areas is None:
         areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, np.asarray(areas))
-    buried = buried_samples(p, nrm, spacing, wtree) if close else np.zeros(len(p), dtype=bool)
+    bury = close if bury is None else bury
+    buried = buried_samples(p, nrm, spacing, wtree) if bury else np.zeros(len(p), dtype=bool)
     w = winding_number(probes, None, None, tree=wtree)
     finest *= 1.01
     lo, hi = _probe_box(p)
@@ -394,8 +397,10 @@ def volume_constraints(
     values = signed_values(w, grad, dist)
     undecided = np.abs(w - 0.5) < RAMP
     extra = ()
-    if close:
-        extra = (*closing_samples(p, probes[undecided], spacing, wtree, tree), buried)
+    if close or bury:
+        none = (np.zeros((0, 3)), np.zeros((0, 3)))
+        closing = closing_samples(p, probes[undecided], spacing, wtree, tree) if close else none
+        extra = (*closing, buried)
     return VolumeConstraints(probes, values, int(np.sum(undecided)), len(near), *extra)
 
 

@@ -157,6 +157,8 @@ def test_samples_inside_another_piece_are_buried_and_left_out_of_the_fit(monkeyp
     assert buried[inner & ~seam].mean() > 0.95
     vc = volume_constraints(p, n, close=True)
     assert np.array_equal(vc.buried, buried) and "buried samples" in vc.summary()
+    # the fit of a noisy cloud asks for none (bury=False)
+    assert not volume_constraints(p, n, close=True, bury=False).buried.any()
     # past BURIED_TESTED samples, a subset is tested and grown from: the same walls
     monkeypatch.setattr(winding, "BURIED_TESTED", 1000)
     assert np.array_equal(buried_samples(p, n, spacing, wtree), buried)

@@ -388,10 +388,11 @@ def volume_constraints(
     wtree = winding_tree(p, nrm, np.asarray(areas))
     bury = close if bury is None else bury
     buried = buried_samples(p, nrm, spacing, wtree) if bury else np.zeros(len(p), dtype=bool)
-    w = winding_number(probes, None, None, tree=wtree)
+    # w with its gradient (they come together): each probe is evaluated once
+    w, g = winding_number(probes, None, None, tree=wtree, gradient=True)
     finest *= 1.01
     lo, hi = _probe_box(p)
-    done = [(probes, dist, w)]
+    done = [(probes, w, g)]
     while True:
         # Where w passes 1/2 far from the data (a hole's cap), the probes' sign changes there:
         # refine those cells so that the fit's zero crossing follows w = 1/2 closely.
@@ -403,21 +404,23 @@ def volume_constraints(
         dist, _ = tree.query(probes, workers=-1)
         ok = np.all((probes >= lo) & (probes <= hi), axis=1) & (dist >= SHELL[0] * cell)
         probes, cell, dist = probes[ok], cell[ok], dist[ok]
-        w = winding_number(probes, None, None, tree=wtree)
-        done.append((probes, dist, w))
-    probes = np.concatenate([a[0] for a in done])
+        w, g = winding_number(probes, None, None, tree=wtree, gradient=True)
+        done.append((probes, w, g))
+    probes, w, grad = (np.concatenate([a[k] for a in done]) for k in range(3))
     # a refined cap cell's children can be probes of the distance shells too: keep one of each
     key = np.round((probes - lo) / (0.25 * finest)).astype(np.int64)
     _, first = np.unique(key, axis=0, return_index=True)
-    probes = probes[np.sort(first)]
+    first = np.sort(first)
+    probes, w, grad = probes[first], w[first], grad[first]
     reach = min(SHELL[0] * finest, RIM_REACH * spacing)
     near = rim_probes(p[rim] if rims else p[:0], spacing, reach, tree)
     near = near[np.all((near >= lo) & (near <= hi), axis=1)]
+    w_near, g_near = winding_number(near, None, None, tree=wtree, gradient=True)
     probes = np.concatenate([probes, near])
+    w, grad = np.concatenate([w, w_near]), np.concatenate([grad, g_near])
     # distances to the samples the fit keeps (a buried sample is no surface to measure from)
     kept = cKDTree(p[~buried]) if buried.any() else tree
     dist, _ = kept.query(probes, workers=-1)
-    w, grad = winding_number(probes, None, None, tree=wtree, gradient=True)
     values = signed_values(w, grad, dist)
     undecided = np.abs(w - 0.5) < RAMP
     extra = ()

@@ -48,6 +48,7 @@ from scipy.spatial import cKDTree
 
 from ._errors import InputError
 from ._holes import boundary_mask
+from ._project import _newton_step
 from ._schwarz import _kd_leaves
 from .objectives import point_spacing
 
@@ -423,12 +424,10 @@ def volume_constraints(
     dist, _ = kept.query(probes, workers=-1)
     values = signed_values(w, grad, dist)
     undecided = np.abs(w - 0.5) < RAMP
-    extra = ()
-    if close or bury:
-        none = (np.zeros((0, 3)), np.zeros((0, 3)))
-        closing = closing_samples(p, probes[undecided], spacing, wtree, tree) if close else none
-        extra = (*closing, buried)
-    return VolumeConstraints(probes, values, int(np.sum(undecided)), len(near), *extra)
+    closing = (np.zeros((0, 3)), np.zeros((0, 3)))
+    if close:
+        closing = closing_samples(p, probes[undecided], spacing, wtree, tree)
+    return VolumeConstraints(probes, values, int(np.sum(undecided)), len(near), *closing, buried)
 
 
 def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.ndarray:
@@ -519,9 +518,7 @@ def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKD
         if len(x) == 0:
             return empty
         w, g = winding_number(x, None, None, tree=wtree, gradient=True)
-        step = ((w - 0.5) / np.maximum(np.sum(g * g, axis=1), 1e-300))[:, None] * g
-        length = np.linalg.norm(step, axis=1, keepdims=True)
-        x = x - step * np.minimum(1.0, 4 * h / np.maximum(length, 1e-300))
+        x = np.asarray(_newton_step(x, w, g, 0.5, 4 * h))
         x = x[np.all((x > lo) & (x < hi), axis=1)]
     if len(x) == 0:
         return empty

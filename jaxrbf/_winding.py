@@ -85,6 +85,10 @@ JUMP_SAMPLES = 2000
 RIM_CELL = 2.0
 RIM_REACH = 9.0
 RIM_SHELL = 1.5
+#: Shell probes (`shell_probes`): NEAR_SPACINGS out along and against the normal of one sample
+#: per cell of NEAR_SPACINGS, kept where no sample is nearer than NEAR_CLEAR of that distance.
+NEAR_SPACINGS = 4.5
+NEAR_CLEAR = 0.75
 #: Closing samples (`closing_samples`): the level w = 1/2 is sampled once per cell of a lattice
 #: of CLOSE_CELL spacings, wherever it lies at least CLOSE_CLEAR spacings from every sample,
 #: grown from the undecided probes (at most CLOSE_MAX_CELLS cells looked at).
@@ -415,6 +419,8 @@ def volume_constraints(
     probes, w, grad = probes[first], w[first], grad[first]
     reach = min(SHELL[0] * finest, RIM_REACH * spacing)
     near = rim_probes(p[rim] if rims else p[:0], spacing, reach, tree)
+    if rims:
+        near = np.concatenate([near, shell_probes(p[~buried], nrm[~buried], spacing, tree)])
     near = near[np.all((near >= lo) & (near <= hi), axis=1)]
     w_near, g_near = winding_number(near, None, None, tree=wtree, gradient=True)
     probes = np.concatenate([probes, near])
@@ -628,6 +634,26 @@ def rim_probes(rim: np.ndarray, spacing: float, reach: float, tree: cKDTree) -> 
     probes = keys * step
     dist, _ = tree.query(probes, workers=-1, distance_upper_bound=reach)
     return probes[(dist >= RIM_SHELL * step) & (dist < reach)]
+
+
+def shell_probes(points, normals, spacing: float, tree: cKDTree) -> np.ndarray:
+    """Probes between the off-surface points (2 spacings out) and the octree's finest shell (9
+    spacings and more): `NEAR_SPACINGS` spacings out along and against the normal of one sample
+    per lattice cell of that size, kept where no sample is nearer than `NEAR_CLEAR` of that
+    distance (not across a thin part). In that gap nothing else holds the fit, and a
+    partition's patches can blend into a closed blob a few spacings off the surface (one sat on
+    the rim of a teapot's lid knob, 3 spacings out, where a false boundary's rim probes had
+    happened to hold it)."""
+    reach = NEAR_SPACINGS * spacing
+    # one sample per cell and normal octant: both sides of a thin part get theirs
+    key = np.column_stack([np.floor(points / reach).astype(np.int64), normals > 0])
+    _, pick = np.unique(key, axis=0, return_index=True)
+    pick = np.sort(pick)
+    step = reach * normals[pick]
+    base = points[pick]
+    probes = np.concatenate([base + step, base - step])
+    dist, _ = tree.query(probes, workers=-1)
+    return probes[dist >= NEAR_CLEAR * reach]
 
 
 def signed_values(w: np.ndarray, grad: np.ndarray, dist: np.ndarray) -> np.ndarray:

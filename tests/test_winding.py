@@ -10,9 +10,12 @@ from jaxrbf._errors import InputError
 from jaxrbf._reconstruct import fit_surface_samples, mesh_fit
 from jaxrbf._winding import (
     CLOSE_CLEAR,
+    NEAR_CLEAR,
+    NEAR_SPACINGS,
     buried_samples,
     calibrated_areas,
     sample_areas,
+    shell_probes,
     unit_jump,
     volume_constraints,
     winding_number,
@@ -81,6 +84,21 @@ def test_area_weights_are_calibrated_so_that_a_hole_closes_where_it_should():
     )
 
 
+def test_shell_probes_stay_out_of_thin_parts():
+    # two parallel sheets 3 spacings apart facing away from each other (a thin plate): the
+    # probes 4.5 spacings out from one would land beyond the other, so none is kept between
+    # or past it, and the ones outside keep their distance
+    g = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0), indexing="ij"), -1).reshape(-1, 2)
+    top = np.column_stack([g, np.full(len(g), 3.0)])
+    bottom = np.column_stack([g, np.zeros(len(g))])
+    p = np.concatenate([top, bottom])
+    n = np.concatenate([np.tile([0.0, 0, 1], (len(g), 1)), np.tile([0.0, 0, -1], (len(g), 1))])
+    probes = shell_probes(p, n, 1.0, cKDTree(p))
+    assert np.sum(probes[:, 2] > 3) > 50 and np.sum(probes[:, 2] < 0) > 50
+    z = probes[:, 2]
+    assert np.all((z > 3.0 + 0.9 * NEAR_SPACINGS) | (z < -0.9 * NEAR_SPACINGS))
+
+
 def test_winding_number_checks_its_queries():
     with pytest.raises(InputError, match="`queries` must be an \\(m, 3\\) array"):
         winding_number(np.zeros((4, 2)), _sphere(100), _sphere(100))
@@ -94,8 +112,14 @@ def test_volume_constraints_are_signed_distances_with_the_right_sign():
     assert len(vc.values) > 200
     assert np.all((vc.values < 0) == (r < 1))
     assert np.max(np.abs(np.abs(vc.values) - np.abs(r - 1))) < 2 * spacing
-    # none near the samples: the surface constraints speak there
-    assert np.min(np.abs(r - 1)) > 5 * spacing
+    # none nearer than the shell probes (4.5 spacings out): the surface constraints speak there
+    gap = np.abs(r - 1) / spacing
+    assert np.min(gap) > NEAR_CLEAR * NEAR_SPACINGS
+    # the shell fills the gap between the off-surface points and the octree's finest shell,
+    # on both sides
+    shell = np.abs(gap - NEAR_SPACINGS) < 0.5
+    assert np.sum(shell & (r < 1)) > 50 and np.sum(shell & (r > 1)) > 50
+    assert np.min(gap[~shell]) > 5
     with pytest.raises(InputError, match="need \\(n, 3\\) points and normals"):
         volume_constraints(p[:, :2], p[:, :2])
 

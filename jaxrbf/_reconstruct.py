@@ -352,7 +352,8 @@ def fit_surface_samples(
     `volume` (3-D): volume constraints away from the samples and around their boundaries,
     signed by the samples' fast winding number and valued by the distance to the samples or to
     the winding number's closing surface, whichever is nearer (`jaxrbf.volume_constraints`;
-    no probes around boundaries when the fit approximates a noisy cloud), so that f is positive
+    no probes around boundaries when the fit approximates a noisy cloud; a shell of probes 4.5
+    spacings off the samples on both sides in every fit), so that f is positive
     outside and negative inside everywhere, not only near the data: an open, multi-part or
     holed input then closes across its holes, without balloons or stray sheets. With them come
     samples of the closing surface w = 1/2 itself, wherever it lies 3 spacings or more from the

@@ -93,10 +93,12 @@ def test_shell_probes_stay_out_of_thin_parts():
     bottom = np.column_stack([g, np.zeros(len(g))])
     p = np.concatenate([top, bottom])
     n = np.concatenate([np.tile([0.0, 0, 1], (len(g), 1)), np.tile([0.0, 0, -1], (len(g), 1))])
-    probes = shell_probes(p, n, 1.0, cKDTree(p))
+    probes, out = shell_probes(p, n, 1.0, cKDTree(p))
     assert np.sum(probes[:, 2] > 3) > 50 and np.sum(probes[:, 2] < 0) > 50
     z = probes[:, 2]
     assert np.all((z > 3.0 + 0.9 * NEAR_SPACINGS) | (z < -0.9 * NEAR_SPACINGS))
+    # each stands on its sample's outer side (along the normal)
+    assert np.all(out)
 
 
 def test_winding_number_checks_its_queries():

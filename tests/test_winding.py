@@ -88,7 +88,7 @@ def test_shell_probes_stay_out_of_thin_parts():
     # two parallel sheets 3 spacings apart facing away from each other (a thin plate): the
     # probes 4.5 spacings out from one would land beyond the other, so none is kept between
     # or past it, and the ones outside keep their distance
-    g = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0), indexing="ij"), -1).reshape(-1, 2)
+    g = np.stack(np.meshgrid(np.arange(60.0), np.arange(60.0), indexing="ij"), -1).reshape(-1, 2)
     top = np.column_stack([g, np.full(len(g), 3.0)])
     bottom = np.column_stack([g, np.zeros(len(g))])
     p = np.concatenate([top, bottom])

@@ -11,7 +11,7 @@ surface. `fill_holes` hands the fit a membrane over each hole instead:
    turned by the smallest rotation that takes its normal onto the point's, so that across a
    sharp crease the other face lies beyond the edge instead of projecting onto the edge line
    (projected only, the far face of a right-angled edge left a gap of half a turn: 1,426 of the
-   fandisk's 100,000 samples read as boundary, all along its edges, where now 12 do; vetoing
+   fandisk's 100,000 samples read as boundary, all along its edges, where now 8 do; vetoing
    every point near a crease instead missed the rims of holes that meet one). Neighbours whose
    normals turn by more than 120 degrees lie on the other side of a thin part and are left
    out. In the interior of a uniformly random sample a gap that wide is rare (probability about

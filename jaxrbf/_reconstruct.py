@@ -31,23 +31,35 @@ PARTITION_OFFSET_SPACINGS = 2.0
 LINEAR_FROM = 50_000
 
 
-def default_kernel(dim: int, method: str, n_samples: int) -> str:
+def default_kernel(dim: int, method: str, n_samples: int, exact: bool = False) -> str:
     """`fit_surface`'s kernel when none is named: the paper's cubic r^3 in 3-D (thin-plate
-    r^2 log r in 2-D), except for a 3-D partition of unity of at least `LINEAR_FROM` samples,
-    which gets the linear r (the 3-D biharmonic spline of Carr et al. 2001). Measured
-    (Chamfer-L1 / normal consistency against the original mesh):
+    r^2 log r in 2-D), except for a 3-D partition of unity of at least `LINEAR_FROM` samples, or
+    of any size when it interpolates samples whose normals came with the input (`exact`: a
+    mesh's face normals, a clean cloud's given normals), which gets the linear r (the 3-D
+    biharmonic spline of Carr et al. 2001). Measured (Chamfer-L1 / normal consistency against
+    the original mesh):
 
     - 100k samples with true normals, meshed at R = 256: the fandisk 0.0526% / 0.9916 with r^3,
       whose fit ripples a few point spacings beside the sharp creases, against 0.0525% / 0.9924
       with r; the bunny 0.0563% / 0.9933 against 0.0563% / 0.9934;
+    - 10k samples with true normals (`benchmarks/wild.py`, default command; Chamfer / NC /
+      precision at 0.5%): the same ripples beside creases and where pieces meet, r^3 against
+      r: the teapot 0.1230% / 0.9715 / 98.66% against 0.1230% / 0.9736 / 99.11%, suzanne
+      (low-poly: every edge a crease) 0.1385% / 0.9452 / 98.64% against 0.1370% / 0.9523 /
+      99.23%, the beetle soup NC 0.848 against 0.851; the smooth bunny is the exception,
+      0.1201% / 0.9897 / 98.71% against 0.1220% / 0.9893 / 98.69% (Poisson depth 9: 0.1299% /
+      0.9854 / 98.65%);
     - 20k raw samples (estimated normals, `denoise`, R = 192; `benchmarks/raw_scans.py`): r^3
       is the better one, e.g. the fandisk 0.1201% / 0.9857 against 0.1208% / 0.9849 without
       noise and the spot 0.1748% / 0.9675 against 0.1837% / 0.9624 at 0.5% noise (the bunny at
-      0.5% noise is the exception: 0.2217% / 0.9441 against 0.2096% / 0.9511).
+      0.5% noise is the exception: 0.2217% / 0.9441 against 0.2096% / 0.9511): estimated
+      normals turn smoothly across a crease, so there is no crease in them for r to keep.
     """
     if dim != 3:
         return "thin-plate"
-    return "linear" if method == "partition" and n_samples >= LINEAR_FROM else "cubic"
+    if method == "partition" and (exact or n_samples >= LINEAR_FROM):
+        return "linear"
+    return "cubic"
 
 
 def partition_offset(surface: np.ndarray) -> float:
@@ -142,9 +154,11 @@ def _surface(
     remove_outliers=False,
     verbose: bool = False,
 ):
-    """`surface_from`, and whether the input is a noisy point cloud (`jaxrbf.estimate_noise`;
+    """`surface_from`, whether the input is a noisy point cloud (`jaxrbf.estimate_noise`;
     False for meshes and polylines, None when `remove_outliers` was not "auto", which is the
-    only case that measures it): `(points, normals, diagonal, noisy)`."""
+    only case that measures it) and whether its normals came with it (a mesh's or polyline's,
+    a cloud's own; False where they were estimated): `(points, normals, diagonal, noisy,
+    given)`."""
     from . import io
     from ._constraints import mesh_samples, polyline_samples
 
@@ -174,11 +188,12 @@ def _surface(
                 f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)"
             )
         p, n = mesh_samples(v, f, points=k, sampling=sampling, seed=seed)
-        return p, n, diagonal(v), False
+        return p, n, diagonal(v), False, True
     if isinstance(data, io.Polyline):
         p, n = polyline_samples(data.vertices, data.closed)
-        return p, n, diagonal(data.vertices), False
+        return p, n, diagonal(data.vertices), False, True
     noisy = None
+    given = data.normals is not None and mode != "estimate"
     if isinstance(remove_outliers, str) and remove_outliers == "auto":
         # A scan as it comes: strays and noise are dealt with without asking. A bare cloud
         # always loses its strays (they mislead the normal estimation); one with normals only
@@ -197,7 +212,7 @@ def _surface(
                 "dense method (set --points, or --method auto|partition for all)"
             )
     p, n = _subsample(data.points, data.normals, points, seed)
-    return p, n, diagonal(p), noisy
+    return p, n, diagonal(p), noisy, given
 
 
 #: Clouds of fewer points get a higher noise threshold (see `_is_noisy`).
@@ -283,9 +298,9 @@ def constraints_from(
 
 def _sampled(source, normals, frac, **options):
     """`_surface(source, normals, **options)` and the constraints at offset `frac` of the
-    diagonal: `(points, normals, diagonal, constraints, noisy)`."""
-    p, n, diag, noisy = _surface(source, normals, **options)
-    return p, n, diag, Constraints.from_points(p, n, frac * diag), noisy
+    diagonal: `(points, normals, diagonal, constraints, noisy, given)`."""
+    p, n, diag, noisy, given = _surface(source, normals, **options)
+    return p, n, diag, Constraints.from_points(p, n, frac * diag), noisy, given
 
 
 def fit_surface(source, normals=None, **options) -> AbstractModel:
@@ -320,8 +335,9 @@ def fit_surface_samples(
     buried samples left out), which the output must account for.
 
     `kernel` defaults to `cubic` (r^3) in 3-D and `thin-plate` (r^2 log r) in 2-D, as in the paper,
-    but to `linear` (r) for a 3-D partition of unity of 50,000 samples or more (`default_kernel`
-    says why);
+    but to `linear` (r) for a 3-D partition of unity of 50,000 samples or more, and for one of
+    any size that interpolates samples with the normals they came with (a mesh's, a clean
+    cloud's own): `default_kernel` says why;
     `radius` (kernels that have one) is a fraction of the diagonal; by default it is set from
     the point spacing (`jaxrbf.default_radius`: 1.75 median nearest-neighbour spacings of the
     surface samples for the Gaussian, 2 for the multiquadrics, 32 for Wendland).
@@ -379,7 +395,7 @@ def fit_surface_samples(
     auto_flag(fill_holes, "fill_holes", False)  # a bad value fails here, before any work
     auto_flag(volume, "volume", False)
     frac = _offset_fraction(offset)
-    p, n, diag, c, noisy = _sampled(
+    p, n, diag, c, noisy, given = _sampled(
         source,
         normals,
         frac,
@@ -415,7 +431,10 @@ def fit_surface_samples(
         if len(cap):
             p, n, rebuild = np.concatenate([p, cap]), np.concatenate([n, cap_n]), True
     if kernel is None:
-        kernel = default_kernel(dim, method, len(surface))
+        # samples interpolated with the normals they came with: a mesh's creases are in them
+        kernel = default_kernel(
+            dim, method, len(surface), exact=given and not (denoise or smoothing)
+        )
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
     r = None
     if cls.has_radius and not isinstance(kernel, AbstractKernel):

@@ -46,8 +46,9 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--kernel",
         choices=list(KERNELS),
-        help="default: cubic in 3-D (linear for the partition method from 50,000 samples), "
-        "thin-plate in 2-D",
+        help="default: cubic in 3-D (linear for the partition method from 50,000 samples, "
+        "and for it at any size when the input's own normals are interpolated: a mesh, a clean "
+        "cloud with normals), thin-plate in 2-D",
     )
     g.add_argument(
         "--radius",

@@ -43,12 +43,12 @@ def default_kernel(dim: int, method: str, n_samples: int, exact: bool = False) -
       whose fit ripples a few point spacings beside the sharp creases, against 0.0525% / 0.9924
       with r; the bunny 0.0563% / 0.9933 against 0.0563% / 0.9934;
     - 10k samples with true normals (`benchmarks/wild.py`, default command; Chamfer / NC /
-      precision at 0.5%): the same ripples beside creases and where pieces meet, r^3 against
-      r: the teapot 0.1230% / 0.9715 / 98.66% against 0.1230% / 0.9736 / 99.11%, suzanne
-      (low-poly: every edge a crease) 0.1385% / 0.9452 / 98.64% against 0.1370% / 0.9523 /
-      99.23%, the beetle soup NC 0.848 against 0.851; the smooth bunny is the exception,
-      0.1201% / 0.9897 / 98.71% against 0.1220% / 0.9893 / 98.69% (Poisson depth 9: 0.1299% /
-      0.9854 / 98.65%);
+      precision at 0.5%, r^3 at 60af37b against r at c2c11a7): the same ripples beside creases
+      and where pieces meet: the teapot 0.1230% / 0.9715 / 98.66% against 0.1234% / 0.9736 /
+      99.11%, suzanne (low-poly: every edge a crease) 0.1385% / 0.9452 / 98.64% against
+      0.1374% / 0.9523 / 99.23%, the beetle soup NC 0.848 against 0.851; the smooth bunny is
+      the exception, 0.1201% / 0.9897 / 98.71% against 0.1219% / 0.9893 / 98.69% (Poisson
+      depth 9 on the same points: 0.1298% / 0.9855 / 98.65-98.72% in two runs);
     - 20k raw samples (estimated normals, `denoise`, R = 192; `benchmarks/raw_scans.py`): r^3
       is the better one, e.g. the fandisk 0.1201% / 0.9857 against 0.1208% / 0.9849 without
       noise and the spot 0.1748% / 0.9675 against 0.1837% / 0.9624 at 0.5% noise (the bunny at

@@ -101,6 +101,9 @@ CLOSE_MAX_CELLS = 2_000_000
 #: A sample is buried when w reads above `BURIED_LEVEL` at `BURIED_SPACINGS` spacings along its
 #: normal and as far against it (`buried_samples`).
 BURIED_SPACINGS, BURIED_LEVEL = 4.0, 0.6
+#: From those, the walls are followed to the seam: a sample within `BURIED_SPACINGS` spacings
+#: of a buried one is buried when its own w reads above SEAM_LEVEL (`_buried_to_the_seam`).
+SEAM_LEVEL = 0.9
 #: `buried_samples` tests every sample up to this many, a random subset of this many beyond
 #: (then grows from those found buried).
 BURIED_TESTED = 200_000
@@ -136,13 +139,33 @@ class WindingTree(NamedTuple):
 def _nodes(pts: np.ndarray, mom: np.ndarray):
     """Centroid (weighted by |a_i n_i|), dipole and radius of each row of (rows, L, 3) members."""
     a = np.linalg.norm(mom, axis=2)
-    centroid = np.sum(pts * a[..., None], axis=1) / np.maximum(a.sum(axis=1), 1e-300)[:, None]
+    # a row without weight (padding, or samples dropped by `_without`) centres on its members,
+    # not on the origin: it adds nothing, and a small radius keeps it out of the near field
+    a = np.where(a.sum(axis=1, keepdims=True) > 0, a, 1.0)
+    centroid = np.sum(pts * a[..., None], axis=1) / a.sum(axis=1)[:, None]
     radius = np.sqrt(np.max(np.sum((pts - centroid[:, None]) ** 2, axis=2), axis=1))
     return centroid, mom.sum(axis=1), radius
 
 
 def winding_tree(points: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> WindingTree:
     """The tree of `points` for `winding_number` (host, numpy)."""
+    return _indexed_tree(points, normals, areas)[0]
+
+
+def _without(tree: WindingTree, slots: np.ndarray, drop: np.ndarray) -> WindingTree:
+    """`tree` (from `_indexed_tree`, whose `slots` map each leaf entry to its sample, -1 on
+    padding) with the samples where `drop` weighing nothing: the same shapes, so the same
+    compiled sum. The nodes' centroids and radii are those of the samples left (with the
+    whole tree's, the far-field sums are off by the dropped samples' shift of each centroid:
+    a hemisphere's closing, re-closed so, sank by 1.4% of its radius)."""
+    mom = np.where((slots >= 0) & ~drop[np.maximum(slots, 0)], 1.0, 0.0)[..., None] * tree.moments
+    k = len(mom) // GROUP
+    groups = _nodes(tree.points.reshape(k, -1, 3), mom.reshape(k, -1, 3))
+    return WindingTree(*groups, *_nodes(tree.points, mom), tree.points, mom)
+
+
+def _indexed_tree(points: np.ndarray, normals: np.ndarray, areas: np.ndarray):
+    """`winding_tree`, and the sample behind each leaf entry ((K, L), -1 on padding)."""
     n = len(points)
     parts = 1 << max(int(np.ceil(np.log2(max(n / LEAF_SIZE, 1)))), 4)
     leaves = _kd_leaves(points, np.arange(n), parts)  # depth-first: GROUP in a row = a subtree
@@ -151,21 +174,26 @@ def winding_tree(points: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> 
     size = max(len(lf) for lf in leaves)
     pts = np.zeros((len(leaves), size, 3))
     mom = np.zeros((len(leaves), size, 3))
+    slots = np.full((len(leaves), size), -1)
     for i, lf in enumerate(leaves):
         pts[i, : len(lf)] = points[lf]
         pts[i, len(lf) :] = points[lf[0]]
         mom[i, : len(lf)] = areas[lf, None] * normals[lf]
+        slots[i, : len(lf)] = lf
     mom[real:] = 0.0
+    slots[real:] = -1
     k = len(leaves) // GROUP
     groups = _nodes(pts.reshape(k, -1, 3), mom.reshape(k, -1, 3))
-    return WindingTree(*groups, *_nodes(pts, mom), pts, mom)
+    return WindingTree(*groups, *_nodes(pts, mom), pts, mom), slots
 
 
 def _dipoles(d: jax.Array, m: jax.Array, use: jax.Array) -> jax.Array:
     """sum of m . d / (4 pi |d|^3) over the second axis where `use` (and d != 0)."""
     r2 = jnp.sum(d * d, axis=-1)
     ok = use & (r2 > 0)
-    inv = jnp.where(ok, 1.0 / jnp.maximum(r2, 1e-30) ** 1.5, 0.0)
+    # r2 replaced where unused, not only the result: a query on a weightless entry (r2 = 0)
+    # would otherwise give 0 * inf = nan in the gradient
+    inv = jnp.where(ok, 1.0 / jnp.where(ok, r2, 1.0) ** 1.5, 0.0)
     return jnp.sum(jnp.sum(d * m, axis=-1) * inv, axis=1) / (4.0 * jnp.pi)
 
 
@@ -452,6 +480,16 @@ def volume_constraints(
     closing = (np.zeros((0, 3)), np.zeros((0, 3)))
     if close:
         closing = closing_samples(p, probes[undecided], spacing, wtree, tree)
+        # each hole closed again with the others closed (`reclosed`), and the probes valued
+        # by the samples and those closings together: where several holes open one solid, w
+        # alone reads well under 1 inside it and each closing bows in
+        *closing, held = reclosed(p, nrm, np.asarray(areas), closing, spacing, tree)
+        if held.any():
+            whole = closed_tree(
+                p, nrm, np.asarray(areas), (closing[0][held], closing[1][held]), spacing
+            )
+            w, grad = winding_number(probes, None, None, tree=whole, gradient=True)
+            values = signed_values(w, grad, dist)
     return VolumeConstraints(
         probes, values, int(np.sum(undecided)), n_rim, *closing, buried, shell=n_shell
     )
@@ -490,7 +528,7 @@ def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.nd
     buried = np.zeros(len(points), dtype=bool)
     if len(points) <= BURIED_TESTED:
         buried[test(np.arange(len(points)))] = True
-        return buried
+        return _buried_to_the_seam(points, spacing, wtree, buried)
     tested = np.zeros(len(points), dtype=bool)
     todo = np.random.default_rng(0).choice(len(points), BURIED_TESTED, replace=False)
     reach = 2 * np.sqrt(len(points) / BURIED_TESTED) * spacing  # a few subset spacings
@@ -502,6 +540,38 @@ def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.nd
             break
         near = cKDTree(points[found]).query(points, distance_upper_bound=reach)[0] < reach
         todo = np.flatnonzero(near & ~tested)
+    return _buried_to_the_seam(points, spacing, wtree, buried)
+
+
+def _buried_to_the_seam(points, spacing: float, wtree: WindingTree, buried: np.ndarray):
+    """`buried` grown along its walls to where they meet the outer surface: from the buried
+    samples, the samples within `BURIED_SPACINGS` spacings whose own w (at the sample, where its
+    own sheet gives 1/2) reads above `SEAM_LEVEL`, and on from those while more are found.
+
+    The two-sided test of `buried_samples` looks 4 spacings out, so it stops that far short of
+    the seam where a wall meets the outside (an eyeball sunk in its socket, a spout in its body):
+    the ring of walls it leaves made bubbles along every seam (suzanne: a ring round each eye,
+    NC 0.9523; two spheres and a smaller one sampled whole: 2 components, Chamfer 0.117%). At the
+    sample itself w needs no step to read: 1/2 from its own sheet plus what the rest give,
+    about 1/2 on the outer surface (up to 0.8 in concave creases; 95% of suzanne's samples read
+    below 0.71), 1/2 + 1 on a wall inside a closed piece and about 1.1 inside suzanne's open head.
+    Grown only from walls the two-sided test found, it cannot fire where there are none (a
+    closed scan's noise)."""
+    if not buried.any():
+        return buried
+    reach = BURIED_SPACINGS * spacing
+    tree = cKDTree(points)
+    tested = buried.copy()
+    front = np.flatnonzero(buried)
+    while len(front):
+        near = tree.query_ball_point(points[front], reach, workers=-1, return_sorted=False)
+        near = np.unique(np.concatenate(near).astype(np.int64))
+        near = near[~tested[near]]
+        if len(near) == 0:
+            break
+        tested[near] = True
+        front = near[np.asarray(winding_number(points[near], None, None, tree=wtree)) > SEAM_LEVEL]
+        buried[front] = True
     return buried
 
 
@@ -600,6 +670,80 @@ def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKD
     dist, _ = tree.query(x, workers=-1, distance_upper_bound=clear)
     keep = dist >= clear
     return x[keep], n[keep]
+
+
+#: Closing samples nearer than this many lattice cells belong to one closing surface.
+CLOSE_LINK = 1.8
+
+
+def closing_areas(normals: np.ndarray, spacing: float) -> np.ndarray:
+    """The area each closing sample stands for. `closing_samples` gives one sample per lattice
+    cell (side h = `CLOSE_CELL` spacings) its level crosses, and a plane of unit normal n
+    crosses (|n_x| + |n_y| + |n_z|) / h^2 cells per unit area: each sample stands for
+    h^2 / |n|_1. (The samples' own density, `sample_areas`, would not do: a closing piece of
+    a few samples weighs each like a disc reaching to its distant neighbours, and that made
+    a teapot's lid gap, whose closing is 2 samples, grow a 354-sample sheet.)"""
+    h = CLOSE_CELL * spacing
+    return h * h / np.maximum(np.sum(np.abs(normals), axis=1), 1.0)
+
+
+def closed_tree(points, normals, areas, closing, spacing: float) -> WindingTree:
+    """The winding tree of the samples together with closing samples `closing` (samples,
+    normals), weighted by `closing_areas`."""
+    c, cn = closing
+    return winding_tree(
+        np.concatenate([points, c]),
+        np.concatenate([normals, cn]),
+        np.concatenate([areas, closing_areas(cn, spacing)]),
+    )
+
+
+def reclosed(points, normals, areas, closing, spacing: float, tree: cKDTree):
+    """The closing surfaces of holes again, each with the others closed: every connected piece
+    of `closing` (samples nearer than `CLOSE_LINK` lattice cells) that closes a hole (one that
+    stays `CLOSE_LINK` cells inside the probes' box) is sampled anew on the level w = 1/2 of the
+    samples and the other holes' closing samples together. Alone, w of an input with several
+    holes reads well under 1 inside (a car body open underneath: about 0.7), and each hole's
+    level 1/2 bows into the solid; with the other holes closed, w inside is about 1 again and
+    each closes across its rim. A piece that runs into the box (past the edge of an open scan,
+    a sheet) closes no hole: it is left as it is and closes nothing for the others (re-closed
+    with it, the open real leg scan grew 12,000 more closing samples and 12% more surface far
+    from its points).
+
+    **Returns:** `(samples, normals, held)`, `held` marking the samples of re-closed holes (all
+    False, and `closing` as given, with fewer than two holes)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    c, cn = closing
+    h = CLOSE_CELL * spacing
+    none = (c, cn, np.zeros(len(c), dtype=bool))
+    if len(c) < 2:
+        return none
+    pairs = cKDTree(c).query_pairs(CLOSE_LINK * h, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(c),) * 2)
+    count, label = connected_components(graph, directed=False)
+    lo, hi = _probe_box(points)
+    edge = np.any((c < lo + CLOSE_LINK * h) | (c > hi - CLOSE_LINK * h), axis=1)
+    hole = np.bincount(label[edge], minlength=count) == 0
+    if np.sum(hole) < 2:
+        return none
+    held = hole[label]
+    whole, slots = _indexed_tree(
+        np.concatenate([points, c[held]]),
+        np.concatenate([normals, cn[held]]),
+        np.concatenate([areas, closing_areas(cn[held], spacing)]),
+    )
+    tag = np.concatenate([np.full(len(points), -1), label[held]])
+    out, out_n, out_held = [c[~held]], [cn[~held]], [np.zeros(np.sum(~held), dtype=bool)]
+    for k in np.flatnonzero(hole):
+        x, xn = closing_samples(
+            points, c[label == k], spacing, _without(whole, slots, tag == k), tree
+        )
+        out.append(x)
+        out_n.append(xn)
+        out_held.append(np.ones(len(x), dtype=bool))
+    return np.concatenate(out), np.concatenate(out_n), np.concatenate(out_held)
 
 
 def calibrated_areas(points, normals, *, tree=None, spacing=None, rim=None) -> np.ndarray:

@@ -12,8 +12,11 @@ from jaxrbf._winding import (
     CLOSE_CLEAR,
     NEAR_CLEAR,
     NEAR_SPACINGS,
+    _indexed_tree,
+    _without,
     buried_samples,
     calibrated_areas,
+    closing_areas,
     sample_areas,
     shell_probes,
     unit_jump,
@@ -162,6 +165,43 @@ def test_closing_samples_lie_on_a_holes_closing_surface_and_face_out():
     assert len(volume_constraints(p, p).closing) == 0  # only when asked
 
 
+def test_the_holes_of_an_open_tube_close_across_its_rims_each_with_the_other_closed():
+    # a tube of radius 0.5 and length 1 open at both ends: w alone reads about 0.71 at its
+    # centre, so each end's level 1/2 bows into the tube (measured: median 0.473, 5th percentile
+    # 0.453); closed again with the other end closed, each end closes across its rim (0.506,
+    # 0.494)
+    rng = np.random.default_rng(0)
+    t, z = rng.uniform(0, 2 * np.pi, 4000), rng.uniform(-0.5, 0.5, 4000)
+    n = np.stack([np.cos(t), np.sin(t), 0 * t], 1)
+    p = 0.5 * n + z[:, None] * [0, 0, 1]
+    vc = volume_constraints(p, n, close=True)
+    c, cn = vc.closing, vc.closing_normals
+    for end in (1, -1):
+        h = end * c[end * c[:, 2] > 0, 2]
+        assert abs(np.median(h) - 0.5) < 0.015 and np.percentile(h, 5) > 0.485
+        assert np.median(end * cn[end * c[:, 2] > 0, 2]) > 0.99
+    # each closing sample stands for its share of the disc it covers (the rim's disc less
+    # CLOSE_CLEAR spacings; measured 0.681 against 0.667)
+    s = np.median(cKDTree(p).query(p, k=2)[0][:, 1])
+    top = closing_areas(cn, s)[c[:, 2] > 0].sum()
+    assert abs(top / (np.pi * (0.5 - CLOSE_CLEAR * s) ** 2) - 1) < 0.05
+
+
+def test_a_tree_with_samples_dropped_sums_like_a_tree_without_them():
+    rng = np.random.default_rng(3)
+    p, a = _sphere(1500), rng.uniform(0.5, 1.5, 1500) * 4 * np.pi / 1500
+    drop = p[:, 0] > 0.4
+    tree, slots = _indexed_tree(p, p, a)
+    q = rng.uniform(-1.6, 1.6, (2000, 3))
+    q = q[np.abs(np.linalg.norm(q, axis=1) - 1) > 0.1]
+    w = winding_number(q, None, None, tree=_without(tree, slots, drop))
+    exact = _direct(q, p[~drop], p[~drop], a[~drop])
+    # the tree's far-field error, as for the whole tree (test above); the dropped samples
+    # change w by far more than that
+    assert np.max(np.abs(w - exact)) < 0.05
+    assert np.max(np.abs(winding_number(q, None, None, tree=tree) - exact)) > 0.3
+
+
 def _two_spheres(n):
     # two unit spheres 1.2 apart, each sampled whole: the part of each inside the other is a wall
     # inside the union (as where a teapot's spout pierces its body)
@@ -177,10 +217,17 @@ def test_samples_inside_another_piece_are_buried_and_left_out_of_the_fit(monkeyp
     spacing = np.median(tree.query(p, k=2)[0][:, 1])
     wtree = winding_tree(p, n, calibrated_areas(p, n, tree=tree, spacing=spacing))
     buried = buried_samples(p, n, spacing, wtree)
-    # the walls inside the other sphere, bar a band of a few spacings by the seam
-    assert not buried[~inner].any()
-    seam = np.abs(p[:, 0] - 0.6) < 6 * spacing
-    assert buried[inner & ~seam].mean() > 0.95
+    # the walls inside the other sphere, up to the seam (the circle x = 0.6, radius 0.8) where
+    # they meet the outside; of the outer surface at most a sample or two at the seam itself
+    # (measured: every inner sample buried, of the 84 within a spacing of the seam too (none
+    # before `_buried_to_the_seam`: the two-sided test reaches 4 spacings out), and 1 of the
+    # 79 outer ones within a spacing)
+    seam = np.hypot(p[:, 0] - 0.6, np.linalg.norm(p[:, 1:], axis=1) - 0.8) / spacing
+    assert buried[inner].mean() > 0.99 and buried[inner & (seam < 1)].mean() > 0.95
+    assert not buried[~inner & (seam > 1.5)].any() and buried[~inner & (seam < 1)].mean() < 0.05
+    monkeypatch.setattr(winding, "SEAM_LEVEL", np.inf)  # the two-sided test alone
+    assert buried_samples(p, n, spacing, wtree)[inner & (seam < 1)].mean() < 0.5
+    monkeypatch.undo()
     vc = volume_constraints(p, n, close=True)
     assert np.array_equal(vc.buried, buried) and "buried samples" in vc.summary()
     # the fit of a noisy cloud asks for none (bury=False)
@@ -198,7 +245,8 @@ def test_a_union_of_pierced_pieces_closes_without_a_bubble_inside():
     p, n = _two_spheres(3000)
     model, samples, _ = fit_surface_samples(p, n)
     # the samples returned (those the output must account for) are the input's unburied ones
-    assert 0.8 * len(p) < len(samples) < 0.9 * len(p)
+    # (the outer surface is 80% of each sphere: a cap of height 0.4 of each lies inside the other)
+    assert abs(len(samples) / len(p) - 0.8) < 0.02
     mesh = mesh_fit(model, samples, resolution=64)
     v = mesh.vertices
     out = np.minimum(np.linalg.norm(v, axis=1), np.linalg.norm(v - [1.2, 0, 0], axis=1))

@@ -427,7 +427,7 @@ def volume_constraints(
         areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, np.asarray(areas))
     bury = close if bury is None else bury
-    buried = buried_samples(p, nrm, spacing, wtree) if bury else np.zeros(len(p), dtype=bool)
+    buried = buried_samples(p, nrm, spacing, wtree, tree) if bury else np.zeros(len(p), dtype=bool)
     # w with its gradient (they come together): each probe is evaluated once
     w, g = winding_number(probes, None, None, tree=wtree, gradient=True)
     finest *= 1.01
@@ -498,7 +498,9 @@ def volume_constraints(
     )
 
 
-def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.ndarray:
+def buried_samples(
+    points, normals, spacing: float, wtree: WindingTree, tree: cKDTree | None = None
+) -> np.ndarray:
     """Which samples are buried: w reads inside (above `BURIED_LEVEL`) `BURIED_SPACINGS`
     spacings out along the sample's normal and as far in against it. Such a sample lies inside
     the solid on both of its sides: a wall inside another piece (where a teapot's spout pierces
@@ -519,7 +521,7 @@ def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.nd
     subset of that size is tested first, then the samples near those found buried, and so on
     while more are found (a buried wall is a stretch of surface, which so many samples see
     whole; on 10,000 samples, a subset of one in 8 missed small clusters: 37 of the teapot's
-    238 buried samples, 56 of suzanne's 302)."""
+    238 buried samples, 56 of suzanne's 302). `tree`: a `cKDTree` of `points` to reuse."""
     points = np.asarray(points, dtype=float)
     step = BURIED_SPACINGS * spacing * np.asarray(normals, dtype=float)
 
@@ -531,7 +533,7 @@ def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.nd
     buried = np.zeros(len(points), dtype=bool)
     if len(points) <= BURIED_TESTED:
         buried[test(np.arange(len(points)))] = True
-        return _buried_to_the_seam(points, spacing, wtree, buried)
+        return _buried_to_the_seam(points, spacing, wtree, buried, tree)
     tested = np.zeros(len(points), dtype=bool)
     todo = np.random.default_rng(0).choice(len(points), BURIED_TESTED, replace=False)
     reach = 2 * np.sqrt(len(points) / BURIED_TESTED) * spacing  # a few subset spacings
@@ -543,10 +545,10 @@ def buried_samples(points, normals, spacing: float, wtree: WindingTree) -> np.nd
             break
         near = cKDTree(points[found]).query(points, distance_upper_bound=reach)[0] < reach
         todo = np.flatnonzero(near & ~tested)
-    return _buried_to_the_seam(points, spacing, wtree, buried)
+    return _buried_to_the_seam(points, spacing, wtree, buried, tree)
 
 
-def _buried_to_the_seam(points, spacing: float, wtree: WindingTree, buried: np.ndarray):
+def _buried_to_the_seam(points, spacing: float, wtree: WindingTree, buried: np.ndarray, tree):
     """`buried` grown along its walls to where they meet the outer surface: from the buried
     samples, the samples within `BURIED_SPACINGS` spacings whose own w (at the sample, where its
     own sheet gives 1/2) reads above `SEAM_LEVEL`, and on from those while more are found.
@@ -563,7 +565,7 @@ def _buried_to_the_seam(points, spacing: float, wtree: WindingTree, buried: np.n
     if not buried.any():
         return buried
     reach = BURIED_SPACINGS * spacing
-    tree = cKDTree(points)
+    tree = cKDTree(points) if tree is None else tree
     tested = buried.copy()
     front = np.flatnonzero(buried)
     while len(front):
@@ -693,8 +695,13 @@ def closing_areas(normals: np.ndarray, spacing: float) -> np.ndarray:
 def closed_tree(points, normals, areas, closing, spacing: float) -> WindingTree:
     """The winding tree of the samples together with closing samples `closing` (samples,
     normals), weighted by `closing_areas`."""
+    return _closed_indexed_tree(points, normals, areas, closing, spacing)[0]
+
+
+def _closed_indexed_tree(points, normals, areas, closing, spacing: float):
+    """`closed_tree`, with `_indexed_tree`'s slots (the closing samples after the samples)."""
     c, cn = closing
-    return winding_tree(
+    return _indexed_tree(
         np.concatenate([points, c]),
         np.concatenate([normals, cn]),
         np.concatenate([areas, closing_areas(cn, spacing)]),
@@ -732,11 +739,7 @@ def reclosed(points, normals, areas, closing, spacing: float, tree: cKDTree):
     if np.sum(hole) < 2:
         return none
     held = hole[label]
-    whole, slots = _indexed_tree(
-        np.concatenate([points, c[held]]),
-        np.concatenate([normals, cn[held]]),
-        np.concatenate([areas, closing_areas(cn[held], spacing)]),
-    )
+    whole, slots = _closed_indexed_tree(points, normals, areas, (c[held], cn[held]), spacing)
     tag = np.concatenate([np.full(len(points), -1), label[held]])
     out, out_n, out_held = [c[~held]], [cn[~held]], [np.zeros(np.sum(~held), dtype=bool)]
     for k in np.flatnonzero(hole):

@@ -32,11 +32,14 @@ def value_and_gradient(implicit: Callable, points) -> tuple[jax.Array, jax.Array
     return both[:, 0], both[:, 1:]
 
 
-def _newton_step(x, f, g, level, max_step):
-    g2 = jnp.sum(g * g, axis=1)
-    step = jnp.where(g2 > 0, (f - level) / jnp.where(g2 > 0, g2, 1.0), 0.0)[:, None] * g
-    length = jnp.linalg.norm(step, axis=1, keepdims=True)
-    return x - step * jnp.minimum(1.0, max_step / jnp.maximum(length, 1e-300))
+def _newton_step(x, f, g, level, max_step, xp=jnp):
+    """One Newton step x - (f - level) g / |g|^2 per row, at most `max_step` long. `xp`: the array
+    namespace (`numpy` for host arrays: eager JAX compiles each op anew for every new row count,
+    and the host-driven loops below shrink their rows every step)."""
+    g2 = xp.sum(g * g, axis=1)
+    step = xp.where(g2 > 0, (f - level) / xp.where(g2 > 0, g2, 1.0), 0.0)[:, None] * g
+    length = xp.linalg.norm(step, axis=1, keepdims=True)
+    return x - step * xp.minimum(1.0, max_step / xp.maximum(length, 1e-300))
 
 
 @eqx.filter_jit
@@ -65,7 +68,7 @@ def _newton_host(implicit, points, level, steps: int, max_step, tol):
         live = live[~done]
         if len(live) == 0:
             break
-        x[live] = np.asarray(_newton_step(x[live], f[live], g[live], level, max_step))
+        x[live] = _newton_step(x[live], f[live], g[live], level, max_step, np)
         fl, gl = implicit.value_and_gradient(x[live])
         f[live], g[live] = np.asarray(fl), np.asarray(gl)
     return x, f, g

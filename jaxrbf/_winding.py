@@ -488,10 +488,13 @@ def volume_constraints(
         if bury:
             *closing, held = reclosed(p, nrm, np.asarray(areas), closing, spacing, tree)
         if held.any():
-            whole = closed_tree(
-                p, nrm, np.asarray(areas), (closing[0][held], closing[1][held]), spacing
-            )
-            w, grad = winding_number(probes, None, None, tree=whole, gradient=True)
+            # w is a sum over dipoles: the closings' share alone is added to the samples' w
+            # the probes already have (a tree of the closing samples is a fraction of one of
+            # the samples and closings together)
+            c, cn = closing[0][held], closing[1][held]
+            extra = winding_tree(c, cn, closing_areas(cn, spacing))
+            w_c, g_c = winding_number(probes, None, None, tree=extra, gradient=True)
+            w, grad = w + w_c, grad + g_c
             values = signed_values(w, grad, dist)
     return VolumeConstraints(
         probes, values, int(np.sum(undecided)), n_rim, *closing, buried, shell=n_shell
@@ -620,7 +623,7 @@ def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKD
         if len(x) == 0:
             return empty
         w, g = winding_number(x, None, None, tree=wtree, gradient=True)
-        x = np.asarray(_newton_step(x, w, g, 0.5, 4 * h))
+        x = _newton_step(x, w, g, 0.5, 4 * h, np)
         x = x[np.all((x > lo) & (x < hi), axis=1)]
     if len(x) == 0:
         return empty
@@ -692,14 +695,10 @@ def closing_areas(normals: np.ndarray, spacing: float) -> np.ndarray:
     return h * h / np.maximum(np.sum(np.abs(normals), axis=1), 1.0)
 
 
-def closed_tree(points, normals, areas, closing, spacing: float) -> WindingTree:
-    """The winding tree of the samples together with closing samples `closing` (samples,
-    normals), weighted by `closing_areas`."""
-    return _closed_indexed_tree(points, normals, areas, closing, spacing)[0]
-
-
 def _closed_indexed_tree(points, normals, areas, closing, spacing: float):
-    """`closed_tree`, with `_indexed_tree`'s slots (the closing samples after the samples)."""
+    """`_indexed_tree` of the samples together with closing samples `closing` (samples,
+    normals), weighted by `closing_areas`, and its slots (the closing samples after the
+    samples)."""
     c, cn = closing
     return _indexed_tree(
         np.concatenate([points, c]),

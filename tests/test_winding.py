@@ -202,6 +202,40 @@ def test_a_tree_with_samples_dropped_sums_like_a_tree_without_them():
     assert np.max(np.abs(winding_number(q, None, None, tree=tree) - exact)) > 0.3
 
 
+def test_trees_of_two_sets_of_samples_sum_to_the_tree_of_both():
+    # volume_constraints adds the re-closed holes' share of w (and its gradient) from a tree of
+    # their closing samples alone to the samples' own
+    rng = np.random.default_rng(4)
+    p = _sphere(1500)
+    cn = _sphere(400, seed=5)
+    c = 0.5 * cn + [0.2, 0, 0]
+    a, ac = np.full(1500, 4 * np.pi / 1500), np.full(400, np.pi / 400)
+    q = rng.uniform(-1.6, 1.6, (1500, 3))
+    q = q[(np.abs(np.linalg.norm(q, axis=1) - 1) > 0.1)]
+    q = q[np.abs(np.linalg.norm(q - [0.2, 0, 0], axis=1) - 0.5) > 0.1]
+    wp, gp = winding_number(q, None, None, tree=winding_tree(p, p, a), gradient=True)
+    wc, gc = winding_number(q, None, None, tree=winding_tree(c, cn, ac), gradient=True)
+    pts, nrm, ar = np.concatenate([p, c]), np.concatenate([p, cn]), np.concatenate([a, ac])
+    w, g = winding_number(q, None, None, tree=winding_tree(pts, nrm, ar), gradient=True)
+    # within the trees' own far-field error of the direct sum, as the tree of both is
+    exact = _direct(q, pts, nrm, ar)
+    assert np.max(np.abs(wp + wc - exact)) < 0.05 and np.max(np.abs(w - exact)) < 0.05
+    assert np.median(np.abs(wp + wc - exact)) < 0.01
+    eps = 1e-4
+    g_exact = np.stack(
+        [
+            (_direct(q + e, pts, nrm, ar) - _direct(q - e, pts, nrm, ar)) / (2 * eps)
+            for e in np.eye(3) * eps
+        ],
+        1,
+    )
+    err_sum = np.median(np.linalg.norm(gp + gc - g_exact, axis=1))
+    err_both = np.median(np.linalg.norm(g - g_exact, axis=1))
+    assert err_sum < 1.5 * err_both  # the gradient as near the direct sum's as the tree of both
+    # both spheres count: inside the small one w reads about 2
+    assert np.median(w[np.linalg.norm(q - [0.2, 0, 0], axis=1) < 0.4]) > 1.9
+
+
 def _two_spheres(n):
     # two unit spheres 1.2 apart, each sampled whole: the part of each inside the other is a wall
     # inside the union (as where a teapot's spout pierces its body)

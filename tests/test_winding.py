@@ -187,6 +187,20 @@ def test_the_holes_of_an_open_tube_close_across_its_rims_each_with_the_other_clo
     assert abs(top / (np.pi * (0.5 - CLOSE_CLEAR * s) ** 2) - 1) < 0.05
 
 
+def test_a_re_closed_hole_does_not_grow_a_copy_of_another_holes_closing():
+    # a unit sphere without its cap above z = 0.75: its closing (the disc at the rim, where w
+    # = 1/2 by symmetry) comes in two pieces, a large one and a few samples beside it; re-closed
+    # with the large one closed, the small one's walk ran onto the large one (w jumps across its
+    # samples) and grew a second disc, half its normals down (1,893 samples for 945)
+    p = _sphere(8000, seed=6)
+    p = p[p[:, 2] < 0.75]
+    alone = volume_constraints(p, p, close=True, bury=False).closing
+    vc = volume_constraints(p, p, close=True)
+    assert len(alone) > 500 and len(vc.closing) < 1.1 * len(alone)
+    assert np.all(vc.closing_normals[:, 2] > 0) and np.median(vc.closing_normals[:, 2]) > 0.99
+    assert np.percentile(np.abs(vc.closing[:, 2] - 0.75), 95) < 0.02
+
+
 def test_a_tree_with_samples_dropped_sums_like_a_tree_without_them():
     rng = np.random.default_rng(3)
     p, a = _sphere(1500), rng.uniform(0.5, 1.5, 1500) * 4 * np.pi / 1500

@@ -467,6 +467,8 @@ def fit_surface_samples(
         # also fires in gaps narrower than its 4 spacings (on a real scan of a machine part, 6
         # samples, whose removal grew 1.4% more surface far from the data).
         exact = not (denoise or smoothing)
+        if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
+            log(f"inside/outside: the winding number of {len(p):,} samples ...")
         vc = volume_constraints(p, n, rims=exact, close=True, bury=exact)
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")

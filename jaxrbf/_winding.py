@@ -486,7 +486,7 @@ def volume_constraints(
         # (exact fits only: on the noisy open leg scan it grew its far share 19% -> 33%)
         held = np.zeros(len(closing[0]), dtype=bool)
         if bury:
-            *closing, held = reclosed(p, nrm, np.asarray(areas), closing, spacing, tree)
+            *closing, held = reclosed(p, nrm, np.asarray(areas), closing, spacing)
         if held.any():
             # w is a sum over dipoles: the closings' share alone is added to the samples' w
             # the probes already have (a tree of the closing samples is a fraction of one of
@@ -695,36 +695,7 @@ def closing_areas(normals: np.ndarray, spacing: float) -> np.ndarray:
     return h * h / np.maximum(np.sum(np.abs(normals), axis=1), 1.0)
 
 
-def _closed_indexed_tree(points, normals, areas, closing, spacing: float):
-    """`_indexed_tree` of the samples together with closing samples `closing` (samples,
-    normals), weighted by `closing_areas`, and its slots (the closing samples after the
-    samples)."""
-    c, cn = closing
-    return _indexed_tree(
-        np.concatenate([points, c]),
-        np.concatenate([normals, cn]),
-        np.concatenate([areas, closing_areas(cn, spacing)]),
-    )
-
-
-def _closing_pieces(points, c, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """The connected pieces of closing samples `c` (nearer than `CLOSE_LINK` lattice cells):
-    each sample's piece, and per piece whether it closes a hole (it stays `CLOSE_LINK` cells
-    inside the probes' box; a piece that runs into the box lies past the edge of an open scan
-    or a sheet)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    h = CLOSE_CELL * spacing
-    pairs = cKDTree(c).query_pairs(CLOSE_LINK * h, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(c),) * 2)
-    count, label = connected_components(graph, directed=False)
-    lo, hi = _probe_box(points)
-    edge = np.any((c < lo + CLOSE_LINK * h) | (c > hi - CLOSE_LINK * h), axis=1)
-    return label, np.bincount(label[edge], minlength=count) == 0
-
-
-def reclosed(points, normals, areas, closing, spacing: float, tree: cKDTree):
+def reclosed(points, normals, areas, closing, spacing: float):
     """The closing surfaces of holes again, each with the others closed: every connected piece
     of `closing` (samples nearer than `CLOSE_LINK` lattice cells) that closes a hole (one that
     stays `CLOSE_LINK` cells inside the probes' box) is sampled anew on the level w = 1/2 of the
@@ -738,23 +709,37 @@ def reclosed(points, normals, areas, closing, spacing: float, tree: cKDTree):
 
     **Returns:** `(samples, normals, held)`, `held` marking the samples of re-closed holes (all
     False, and `closing` as given, with fewer than two holes)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     c, cn = closing
+    h = CLOSE_CELL * spacing
     none = (c, cn, np.zeros(len(c), dtype=bool))
     if len(c) < 2:
         return none
-    label, hole = _closing_pieces(points, c, spacing)
+    pairs = cKDTree(c).query_pairs(CLOSE_LINK * h, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(c),) * 2)
+    count, label = connected_components(graph, directed=False)
+    lo, hi = _probe_box(points)
+    edge = np.any((c < lo + CLOSE_LINK * h) | (c > hi - CLOSE_LINK * h), axis=1)
+    hole = np.bincount(label[edge], minlength=count) == 0
     if np.sum(hole) < 2:
         return none
     held = hole[label]
-    whole, slots = _closed_indexed_tree(points, normals, areas, (c[held], cn[held]), spacing)
+    # the samples and the held closing samples (weighted by `closing_areas`) in one tree, each
+    # hole's own left out of it in turn by `_without`
+    whole, slots = _indexed_tree(
+        np.concatenate([points, c[held]]),
+        np.concatenate([normals, cn[held]]),
+        np.concatenate([areas, closing_areas(cn[held], spacing)]),
+    )
     tag = np.concatenate([np.full(len(points), -1), label[held]])
     out, out_n, out_held = [c[~held]], [cn[~held]], [np.zeros(np.sum(~held), dtype=bool)]
     for k in np.flatnonzero(hole):
         # the walk stops short of the other closings too: across them w jumps as it does across
         # the samples, and past a small piece near a larger one it grew a copy of the larger's
         # closing, half its normals the wrong way (an open sphere: 1,893 samples for 945)
-        others = held & (label != k)
-        clear = cKDTree(np.concatenate([points, c[others]])) if others.any() else tree
+        clear = cKDTree(np.concatenate([points, c[held & (label != k)]]))
         x, xn = closing_samples(
             points, c[label == k], spacing, _without(whole, slots, tag == k), clear
         )

@@ -80,7 +80,11 @@ Targets, PASS or FAIL per input, then a summary line:
   and its precision at 0.5% >= Poisson's;
 - without one: jaxrbf did not fail, and its far share <= Poisson's and its mean distance <=
   Poisson's.
-A comparison against a Poisson run that raised counts as met. The exit status is 0 whatever the
+A comparison against a Poisson run that raised counts as met. Open3D's Poisson is not
+deterministic (its figures move by a few hundredths of a percent from run to run on the same
+points): it runs POISSON_REPEATS = 3 times per input (`--poisson-repeats`), the first is the one
+judged against, and the verdicts say where jaxrbf's figure lies within the spread of the runs,
+a verdict that is a coin toss. The exit status is 0 whatever the
 verdicts (it is a benchmark), unless the script itself fails.
 
 Run from the repository root (Open3D comes with the benchmark extra, `pip install -e .[bench]`):
@@ -135,6 +139,7 @@ SCAN_TRANSLATION = 0.001  # per-view misregistration shift
 SCAN_POINTS = 150_000  # the pooled hits are subsampled to this many
 
 POISSON_DEPTH = 9
+POISSON_REPEATS = 3  # Poisson runs per input: the first is judged against, all give its spread
 NORMAL_KNN = 30  # Open3D's normal estimation and orientation, for inputs without normals
 THRESHOLD = 0.005  # precision and recall, fraction of the reference's diagonal
 FAR = 0.01  # far share, fraction of the input's diagonal
@@ -473,6 +478,25 @@ def verdict(entry: dict) -> tuple[bool, list[str]]:
     return not reasons, reasons
 
 
+def spread(runs: list[dict], with_ref: bool) -> dict:
+    """{key: [min, max]} of each judged figure over the Poisson `runs` that did not fail."""
+    ok = [r for r in runs if r["ok"]]
+    checks = REFERENCE_CHECKS if with_ref else ONE_SIDED_CHECKS
+    if not ok:
+        return {}
+    return {key: [min(r[key] for r in ok), max(r[key] for r in ok)] for key, *_ in checks}
+
+
+def within_spread(entry: dict) -> list[str]:
+    """The judged figures of jaxrbf that lie within Poisson's spread over its runs (a verdict on
+    them is a coin toss), as labels."""
+    j, sp = entry["jaxrbf"], entry.get("poisson_spread") or {}
+    checks = REFERENCE_CHECKS if entry["reference"] else ONE_SIDED_CHECKS
+    if not j["ok"]:
+        return []
+    return [label for key, label, *_ in checks if key in sp and sp[key][0] <= j[key] <= sp[key][1]]
+
+
 # --- reporting --------------------------------------------------------------------------------
 
 
@@ -568,7 +592,18 @@ def parse_args(argv=None):
     p.add_argument(
         "--timeout", type=float, default=1800.0, help="seconds per jaxrbf run (default 1800)"
     )
-    return p.parse_args(argv)
+    p.add_argument(
+        "--poisson-repeats",
+        type=int,
+        default=POISSON_REPEATS,
+        metavar="N",
+        help=f"Poisson runs per input; the first is judged against, the others give its spread "
+        f"(default {POISSON_REPEATS}; 1: one run)",
+    )
+    args = p.parse_args(argv)
+    if args.poisson_repeats < 1:
+        p.error(f"--poisson-repeats must be at least 1, got {args.poisson_repeats}")
+    return args
 
 
 def revision() -> str:
@@ -604,6 +639,12 @@ def run_input(inp: Input, workdir: Path, extra: list[str], args) -> dict:
     log = workdir / f"{inp.name}.jaxrbf.log"
     j = run_jaxrbf(source, workdir / f"{inp.name}.jaxrbf.ply", log, extra, args.timeout)
     p = run_poisson(points, normals, workdir / f"{inp.name}.poisson{POISSON_DEPTH}.ply")
+    # Open3D's Poisson is not deterministic (its threads): further runs on the same points give
+    # the spread of its figures, not judged against, to tell a verdict that is a coin toss
+    again = [
+        run_poisson(points, normals, workdir / f"{inp.name}.poisson{POISSON_DEPTH}.again.ply")
+        for _ in range(args.poisson_repeats - 1)
+    ]
     entry = dict(
         name=inp.name,
         kind=inp.kind,
@@ -615,6 +656,8 @@ def run_input(inp: Input, workdir: Path, extra: list[str], args) -> dict:
         **notes,
     )
     entry["pass"], entry["reasons"] = verdict(entry)
+    runs = [entry["poisson"], *(figures(a, points, ref, args) for a in again)]
+    entry["poisson_spread"] = spread(runs, ref is not None)
     if truth is not None:
         # the true surface judged as the outputs are: which of the criteria it would meet
         entry["truth"] = figures(dict(ok=True, seconds=0.0, mesh=truth), points, ref, args)
@@ -682,6 +725,17 @@ def main(argv=None) -> int:
     for e in entries:
         why = f" ({'; '.join(e['reasons'])})" if e["reasons"] else ""
         print(f"  {e['name']}: {'PASS' if e['pass'] else 'FAIL'}{why}")
+        sp = e.get("poisson_spread") or {}
+        if args.poisson_repeats > 1 and sp:
+            checks = REFERENCE_CHECKS if e["reference"] else ONE_SIDED_CHECKS
+            ranges = ", ".join(
+                f"{label} {sp[key][0]:{fmt}}-{sp[key][1]:{fmt}}" for key, label, _, fmt in checks
+            )
+            tie = ", ".join(within_spread(e)) or "none"
+            print(
+                f"    Poisson over {args.poisson_repeats} runs: {ranges}; jaxrbf within that "
+                f"spread on: {tie}"
+            )
         if "truth" in e:
             would = "; ".join(e["truth_reasons"]) or "none"
             print(f"    the true surface judged so: it would fail on {would}", end="")

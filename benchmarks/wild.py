@@ -349,9 +349,9 @@ def run_jaxrbf(source: Path, out: Path, log: Path, extra: list[str], timeout: fl
     return dict(ok=True, seconds=seconds, mesh=mesh)
 
 
-def run_poisson(points: np.ndarray, normals: np.ndarray | None, out: Path) -> dict:
+def run_poisson(points: np.ndarray, normals: np.ndarray | None, out: Path | None) -> dict:
     """Open3D's screened Poisson at depth 9 on `points` (with Open3D's own normals when `normals`
-    is None, their estimation timed too); the mesh is also written to `out`."""
+    is None, their estimation timed too); the mesh is also written to `out` (unless None)."""
     import open3d as o3d
 
     from jaxrbf import io
@@ -370,7 +370,8 @@ def run_poisson(points: np.ndarray, normals: np.ndarray | None, out: Path) -> di
         return dict(ok=False, seconds=time.perf_counter() - t0, error=error)
     seconds = time.perf_counter() - t0
     mesh = io.Mesh(np.asarray(m.vertices, np.float64), np.asarray(m.triangles, np.int64))
-    io.write_mesh(out, mesh)
+    if out is not None:
+        io.write_mesh(out, mesh)
     return dict(ok=True, seconds=seconds, mesh=mesh)
 
 
@@ -462,6 +463,11 @@ REFERENCE_CHECKS = (
 ONE_SIDED_CHECKS = (("far", "far share", True, ".2%"), ("mean", "mean distance", True, ".4%"))
 
 
+def judged(with_ref: bool) -> tuple:
+    """The checks an input is judged by: against its reference, or one-sided."""
+    return REFERENCE_CHECKS if with_ref else ONE_SIDED_CHECKS
+
+
 def verdict(entry: dict) -> tuple[bool, list[str]]:
     """(pass, reasons) for one input."""
     j, p = entry["jaxrbf"], entry["poisson"]
@@ -469,7 +475,7 @@ def verdict(entry: dict) -> tuple[bool, list[str]]:
         return False, [f"jaxrbf failed ({j['error']})"]
     if not p["ok"]:
         return True, [f"Poisson failed ({p['error']})"]
-    checks = REFERENCE_CHECKS if entry["reference"] else ONE_SIDED_CHECKS
+    checks = judged(entry["reference"])
     reasons = []
     for key, label, lower, fmt in checks:
         if (j[key] > p[key]) if lower else (j[key] < p[key]):
@@ -481,7 +487,7 @@ def verdict(entry: dict) -> tuple[bool, list[str]]:
 def spread(runs: list[dict], with_ref: bool) -> dict:
     """{key: [min, max]} of each judged figure over the Poisson `runs` that did not fail."""
     ok = [r for r in runs if r["ok"]]
-    checks = REFERENCE_CHECKS if with_ref else ONE_SIDED_CHECKS
+    checks = judged(with_ref)
     if not ok:
         return {}
     return {key: [min(r[key] for r in ok), max(r[key] for r in ok)] for key, *_ in checks}
@@ -491,7 +497,7 @@ def within_spread(entry: dict) -> list[str]:
     """The judged figures of jaxrbf that lie within Poisson's spread over its runs (a verdict on
     them is a coin toss), as labels."""
     j, sp = entry["jaxrbf"], entry.get("poisson_spread") or {}
-    checks = REFERENCE_CHECKS if entry["reference"] else ONE_SIDED_CHECKS
+    checks = judged(entry["reference"])
     if not j["ok"]:
         return []
     return [label for key, label, *_ in checks if key in sp and sp[key][0] <= j[key] <= sp[key][1]]
@@ -641,10 +647,7 @@ def run_input(inp: Input, workdir: Path, extra: list[str], args) -> dict:
     p = run_poisson(points, normals, workdir / f"{inp.name}.poisson{POISSON_DEPTH}.ply")
     # Open3D's Poisson is not deterministic (its threads): further runs on the same points give
     # the spread of its figures, not judged against, to tell a verdict that is a coin toss
-    again = [
-        run_poisson(points, normals, workdir / f"{inp.name}.poisson{POISSON_DEPTH}.again.ply")
-        for _ in range(args.poisson_repeats - 1)
-    ]
+    again = [run_poisson(points, normals, None) for _ in range(args.poisson_repeats - 1)]
     entry = dict(
         name=inp.name,
         kind=inp.kind,
@@ -727,7 +730,7 @@ def main(argv=None) -> int:
         print(f"  {e['name']}: {'PASS' if e['pass'] else 'FAIL'}{why}")
         sp = e.get("poisson_spread") or {}
         if args.poisson_repeats > 1 and sp:
-            checks = REFERENCE_CHECKS if e["reference"] else ONE_SIDED_CHECKS
+            checks = judged(e["reference"])
             ranges = ", ".join(
                 f"{label} {sp[key][0]:{fmt}}-{sp[key][1]:{fmt}}" for key, label, _, fmt in checks
             )

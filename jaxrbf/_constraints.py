@@ -27,6 +27,21 @@ DEFAULT_OFFSET = 0.01
 #: Points closer than this fraction of the diagonal are merged.
 MERGE_TOL = 1e-6
 _SHRINK_STEPS = 8
+#: Each sample stands for the surface around it out to its `_PATCH_K`-th nearest neighbour
+#: (about 2.5 nearest-neighbour spacings for even sampling: the size of the gaps that random
+#: sampling leaves), bent by the curvature those neighbours show.
+_PATCH_K = 6
+#: An off-surface point nearer than this fraction of its offset to another sample's patch is
+#: shrunk: f would have to change by the offset over less than half of it, and a linear or
+#: cubic interpolant overshoots to do so.
+_PATCH_CLEAR = 0.5
+#: Neighbours whose normals are within 30 degrees lie on the sample's own face: its curvature is
+#: taken from them (a crease's other face would read as a very sharp bend), and a sample with
+#: fewer than two of them (a lone point on a crease) stands for no patch.
+_SAME_FACE_COS = float(np.cos(np.radians(30.0)))
+#: Neighbours of each off-surface point whose patches are tested, and points per block.
+_PATCH_NEIGHBOURS = 16
+_CHUNK = 65536
 
 
 def _unit_normals(normals: np.ndarray, n: int, dim: int) -> np.ndarray:
@@ -68,16 +83,52 @@ def duplicate_pairs_checked(p: np.ndarray, nrm: np.ndarray, tol: float) -> np.nd
 
 def _validated_offsets(p: np.ndarray, n: np.ndarray, offset: float, sign: float) -> np.ndarray:
     """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
-    off-surface point is its own origin; NaN marks points that never get there (dropped)."""
+    off-surface point is its own origin; NaN marks points that never get there (dropped).
+
+    Samples are points, and a gap between them (random samples leave gaps of 2-3 spacings) lets
+    an off-surface point pass that test while the unsampled surface lies much closer to it than
+    its offset: f then has to fall from +d to 0 over a fraction of d, and the surface dents in
+    by about d (measured on the fandisk's narrow strips). So each sample also stands for the
+    surface around it out to its `_PATCH_K`-th neighbour: its tangent plane bent by the median
+    normal curvature of its neighbours on the same face (a paraboloid, so that a curved
+    surface's patches do not stick out of it and a sphere's offsets stay whole), and an offset
+    point whose height over another sample's patch is under `_PATCH_CLEAR` of its offset is
+    shrunk too."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(p)
+    k = min(_PATCH_K + 1, len(p))
+    rho = np.zeros(len(p))
+    kappa = np.zeros(len(p))
+    if k > 1:
+        dist, idx = tree.query(p, k=k, workers=-1)
+        rho = dist[:, -1]
+        rel = p[idx[:, 1:]] - p[:, None, :]
+        h = np.einsum("kmd,kd->km", rel, n)
+        t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 1e-300)
+        same = np.einsum("kmd,kd->km", n[idx[:, 1:]], n) > _SAME_FACE_COS
+        own = same.sum(axis=1) >= 2  # fewer: no patch of its own face to stand for
+        rho = np.where(own, rho, 0.0)
+        kappa = np.zeros(len(p))
+        kappa[own] = np.nanmedian(np.where(same, -2.0 * h / t2, np.nan)[own], axis=1)
     d = np.full(len(p), float(offset))
     todo = np.arange(len(p))
+    m = min(_PATCH_NEIGHBOURS, len(p))
     for _ in range(_SHRINK_STEPS + 1):
-        q = p[todo] + sign * d[todo, None] * n[todo]
-        dist, idx = tree.query(q, workers=-1)
-        bad = (idx != todo) & (dist < d[todo] * (1 - 1e-9))
+        bad = np.zeros(len(todo), bool)
+        for lo in range(0, len(todo), _CHUNK):
+            t = todo[lo : lo + _CHUNK]
+            q = p[t] + sign * d[t, None] * n[t]
+            dist, idx = tree.query(q, k=m, workers=-1)
+            dist, idx = dist.reshape(len(t), m), idx.reshape(len(t), m)
+            near = (idx[:, 0] != t) & (dist[:, 0] < d[t] * (1 - 1e-9))
+            rel = q[:, None, :] - p[idx]
+            h = np.einsum("kmd,kmd->km", rel, n[idx])
+            t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 0.0)
+            height = np.abs(h + 0.5 * kappa[idx] * t2)
+            patch = (idx != t[:, None]) & (t2 <= rho[idx] ** 2)
+            patch &= height < _PATCH_CLEAR * d[t, None]
+            bad[lo : lo + _CHUNK] = near | patch.any(axis=1)
         todo = todo[bad]
         if len(todo) == 0:
             break

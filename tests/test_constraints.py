@@ -49,6 +49,35 @@ def test_offsets_shrink_in_thin_parts():
     assert pts.shape[0] == 3 * len(p) - c.n_dropped
 
 
+def _corner_with_gap(h):
+    # a concave corner: a floor (z = 0, x < 0, outward +z) meets a wall (x = 0, z > 0, outward
+    # -x), both sampled every h, with a gap of 2.5 spacings in the floor's samples beside the wall
+    s = np.arange(-1, 1 + 1e-9, h)
+    fx, fy = np.meshgrid(np.arange(-1, -h / 2, h), s, indexing="ij")
+    floor = np.column_stack([fx.ravel(), fy.ravel(), np.zeros(fx.size)])
+    floor = floor[np.hypot(floor[:, 0] + 1.0 * h, floor[:, 1]) > 2.5 * h]
+    wz, wy = np.meshgrid(np.arange(h / 2, 1, h), s, indexing="ij")
+    wall = np.column_stack([np.zeros(wz.size), wy.ravel(), wz.ravel()])
+    p = np.vstack([floor, wall])
+    n = np.vstack([np.tile([0, 0, 1.0], (len(floor), 1)), np.tile([-1.0, 0, 0], (len(wall), 1))])
+    return p, n
+
+
+def test_offsets_shrink_where_a_gap_in_the_samples_hides_the_surface():
+    # the wall's outside points beside the gap are nearer the unsampled floor than their offset,
+    # though no sample is: each must be shrunk to at most about its distance to the floor
+    h = 0.05
+    p, n = _corner_with_gap(h)
+    c = Constraints.from_points(p, n, offset=2 * h)
+    pts, vals = np.asarray(c.points), np.asarray(c.values)
+    out = vals > 0
+    floor_dist = pts[out, 2]  # all outside points lie above the floor and beside the wall
+    assert np.all(vals[out] <= 2 * floor_dist + 1e-12)
+    # on a flat part away from the corner and the gap, the offsets are untouched
+    far = (pts[:, 0] < -0.5) & (np.abs(pts[:, 1]) < 0.5)
+    assert np.all(np.abs(vals[far & (vals != 0)]) == 2 * h)
+
+
 def test_duplicates_are_merged():
     p, n = sphere(50)
     c = Constraints.from_points(np.vstack([p, p[:3]]), np.vstack([n, n[:3]]), offset=0.1)

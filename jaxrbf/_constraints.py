@@ -81,7 +81,9 @@ def duplicate_pairs_checked(p: np.ndarray, nrm: np.ndarray, tol: float) -> np.nd
     return pairs
 
 
-def _validated_offsets(p: np.ndarray, n: np.ndarray, offset: float, sign: float) -> np.ndarray:
+def _validated_offsets(
+    p: np.ndarray, n: np.ndarray, offset: float, sign: float, between: bool = True
+) -> np.ndarray:
     """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
     off-surface point is its own origin; NaN marks points that never get there (dropped).
 
@@ -93,14 +95,16 @@ def _validated_offsets(p: np.ndarray, n: np.ndarray, offset: float, sign: float)
     normal curvature of its neighbours on the same face (a paraboloid, so that a curved
     surface's patches do not stick out of it and a sphere's offsets stay whole), and an offset
     point whose height over another sample's patch is under `_PATCH_CLEAR` of its offset is
-    shrunk too."""
+    shrunk too. `between=False` leaves that second test out: a noisy cloud's samples scatter
+    about their surface by a good part of the offset, so their patches (and the curvatures
+    they are bent by) are noise (measured on virtual range scans)."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(p)
     k = min(_PATCH_K + 1, len(p))
     rho = np.zeros(len(p))
     kappa = np.zeros(len(p))
-    if k > 1:
+    if k > 1 and between:
         dist, idx = tree.query(p, k=k, workers=-1)
         rho = dist[:, -1]
         rel = p[idx[:, 1:]] - p[:, None, :]
@@ -169,6 +173,7 @@ class Constraints(eqx.Module):
         *,
         validate: bool = True,
         merge_tol: float = MERGE_TOL,
+        between: bool = True,
     ) -> Constraints:
         """On-surface points and their outward normals to constraints.
 
@@ -179,6 +184,9 @@ class Constraints(eqx.Module):
         - `validate`: shrink (or drop) off-surface points that land nearer another part of the
           surface than their own origin (Carr et al. 2001).
         - `merge_tol`: points closer than this fraction of the diagonal are merged.
+        - `between`: validate against the surface between the samples too (each sample's patch
+          of tangent plane, bent by its neighbours' curvature), not only against the samples;
+          meant for samples that lie on their surface (False for a noisy cloud).
 
         **Returns:** `Constraints` with the n on-surface points first, then the outside points
         (value +d), then the inside points (value -d).
@@ -199,7 +207,11 @@ class Constraints(eqx.Module):
         parts_p, parts_v = [p], [np.zeros(len(p))]
         shrunk = dropped = 0
         for sign in (1.0, -1.0):
-            d = _validated_offsets(p, nrm, offset, sign) if validate else np.full(len(p), offset)
+            d = (
+                _validated_offsets(p, nrm, offset, sign, between)
+                if validate
+                else np.full(len(p), offset)
+            )
             keep = np.isfinite(d)
             shrunk += int(np.sum(keep & (d < offset)))
             dropped += int(np.sum(~keep))

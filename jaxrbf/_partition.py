@@ -523,7 +523,7 @@ def fit_partition(
         ps, ns = surface
         pick = np.sort(rng.choice(len(ps), min(keep, len(ps)), replace=False))
         coarse_surface = (ps[pick], ns[pick])
-        xc, hc = coarse_constraints(*coarse_surface)
+        xc, hc = coarse_constraints(*coarse_surface, between=not smoothing)
     else:
         sub = np.sort(rng.choice(n, max(base_size // 2, n // COARSENING), replace=False))
         coarse_surface, xc, hc = None, xw[sub], h[sub]
@@ -647,13 +647,18 @@ def surface_of(xw: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray] |
     return p[has], normals[has] / length[has, None]
 
 
-def coarse_constraints(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def coarse_constraints(
+    points: np.ndarray, normals: np.ndarray, between: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """Constraints of a coarse level: `points` and validated off-surface points at
     `COARSE_OFFSET_SPACINGS` median spacings of `points`, shrunk where they would come nearer
-    another part of the surface (the validation of `Constraints.from_points`)."""
+    another part of the surface (the validation of `Constraints.from_points`; `between` as
+    there: False where the fit approximates)."""
     from ._constraints import Constraints
 
-    c = Constraints.from_points(points, normals, COARSE_OFFSET_SPACINGS * point_spacing(points))
+    c = Constraints.from_points(
+        points, normals, COARSE_OFFSET_SPACINGS * point_spacing(points), between=between
+    )
     return np.asarray(c.points), np.asarray(c.values)
 
 

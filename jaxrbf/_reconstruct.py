@@ -298,9 +298,11 @@ def constraints_from(
 
 def _sampled(source, normals, frac, **options):
     """`_surface(source, normals, **options)` and the constraints at offset `frac` of the
-    diagonal: `(points, normals, diagonal, constraints, noisy, given)`."""
+    diagonal: `(points, normals, diagonal, constraints, noisy, given)`; a noisy cloud's
+    off-surface points are validated against its samples only (`between=False`)."""
     p, n, diag, noisy, given = _surface(source, normals, **options)
-    return p, n, diag, Constraints.from_points(p, n, frac * diag), noisy, given
+    c = Constraints.from_points(p, n, frac * diag, between=not noisy)
+    return p, n, diag, c, noisy, given
 
 
 def fit_surface(source, normals=None, **options) -> AbstractModel:
@@ -482,8 +484,14 @@ def fit_surface_samples(
             fitted_p = np.concatenate([p, vc.closing])
             fitted_n = np.concatenate([n, vc.closing_normals])
             rebuild = True
+    if denoise or smoothing:
+        # an approximated cloud's samples scatter about the surface: its off-surface points are
+        # validated against the samples only (`Constraints.from_points(between=False)`)
+        rebuild = True
     if rebuild:  # once, whatever asked for it
-        c = Constraints.from_points(fitted_p, fitted_n, frac * diag)
+        c = Constraints.from_points(
+            fitted_p, fitted_n, frac * diag, between=not (denoise or smoothing)
+        )
     if vc is not None:
         c = c.with_volume(vc.points, vc.values)
     if verbose:

@@ -76,6 +76,10 @@ def test_offsets_shrink_where_a_gap_in_the_samples_hides_the_surface():
     # on a flat part away from the corner and the gap, the offsets are untouched
     far = (pts[:, 0] < -0.5) & (np.abs(pts[:, 1]) < 0.5)
     assert np.all(np.abs(vals[far & (vals != 0)]) == 2 * h)
+    # validated against the samples alone (what a noisy cloud gets), some of them are not
+    bare = Constraints.from_points(p, n, offset=2 * h, between=False)
+    bp, bv = np.asarray(bare.points), np.asarray(bare.values)
+    assert np.any(bv[bv > 0] > 2 * bp[bv > 0, 2] + 1e-12)
 
 
 def test_duplicates_are_merged():

@@ -280,8 +280,9 @@ def test_coarse_levels_rebuilt_with_their_own_offset(monkeypatch):
     seen = []
     real = _partition.coarse_constraints
 
-    def spy(points, normals):
-        x, h = real(points, normals)
+    def spy(points, normals, between=True):
+        assert between  # an interpolating fit validates against the surface between samples
+        x, h = real(points, normals, between)
         seen.append((len(points), float(np.max(np.abs(h)))))
         return x, h
 

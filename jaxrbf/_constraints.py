@@ -81,6 +81,33 @@ def duplicate_pairs_checked(p: np.ndarray, nrm: np.ndarray, tol: float) -> np.nd
     return pairs
 
 
+def _patches(tree, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each sample's patch for `_validated_offsets`: its reach (the distance to its `_PATCH_K`-th
+    neighbour), its curvature (the median over its neighbours on the same face of the bend
+    -2 h / t^2 that each shows over its tangent plane) and whether it has one (at least two
+    neighbours on its face)."""
+    dist, idx = tree.query(p, k=min(_PATCH_K + 1, len(p)), workers=-1)
+    rel = p[idx[:, 1:]] - p[:, None, :]
+    h = np.einsum("kmd,kd->km", rel, n)
+    t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 1e-300)
+    same = np.einsum("kmd,kd->km", n[idx[:, 1:]], n) > _SAME_FACE_COS
+    has = same.sum(axis=1) >= 2
+    kappa = np.zeros(len(p))
+    kappa[has] = np.nanmedian(np.where(same, -2.0 * h / t2, np.nan)[has], axis=1)
+    return dist[:, -1], kappa, has
+
+
+def _on_another_patch(q, t, idx, d, p, n, reach, kappa, has) -> np.ndarray:
+    """Which off-surface points `q` (of samples `t`, offsets `d`) lie nearer than `_PATCH_CLEAR`
+    of their offset to the patch of a neighbour `idx` other than their own origin."""
+    rel = q[:, None, :] - p[idx]
+    h = np.einsum("kmd,kmd->km", rel, n[idx])
+    t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 0.0)
+    height = np.abs(h + 0.5 * kappa[idx] * t2)
+    hit = (idx != t[:, None]) & has[idx] & (t2 <= reach[idx] ** 2)
+    return np.any(hit & (height < _PATCH_CLEAR * d[:, None]), axis=1)
+
+
 def _validated_offsets(
     p: np.ndarray, n: np.ndarray, offset: float, sign: float, between: bool = True
 ) -> np.ndarray:
@@ -101,23 +128,10 @@ def _validated_offsets(
     from scipy.spatial import cKDTree
 
     tree = cKDTree(p)
-    k = min(_PATCH_K + 1, len(p))
-    rho = np.zeros(len(p))
-    kappa = np.zeros(len(p))
-    if k > 1 and between:
-        dist, idx = tree.query(p, k=k, workers=-1)
-        rho = dist[:, -1]
-        rel = p[idx[:, 1:]] - p[:, None, :]
-        h = np.einsum("kmd,kd->km", rel, n)
-        t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 1e-300)
-        same = np.einsum("kmd,kd->km", n[idx[:, 1:]], n) > _SAME_FACE_COS
-        own = same.sum(axis=1) >= 2  # fewer: no patch of its own face to stand for
-        rho = np.where(own, rho, 0.0)
-        kappa = np.zeros(len(p))
-        kappa[own] = np.nanmedian(np.where(same, -2.0 * h / t2, np.nan)[own], axis=1)
+    patches = _patches(tree, p, n) if between and len(p) > 1 else None
     d = np.full(len(p), float(offset))
     todo = np.arange(len(p))
-    m = min(_PATCH_NEIGHBOURS, len(p))
+    m = 1 if patches is None else min(_PATCH_NEIGHBOURS, len(p))
     for _ in range(_SHRINK_STEPS + 1):
         bad = np.zeros(len(todo), bool)
         for lo in range(0, len(todo), _CHUNK):
@@ -126,13 +140,9 @@ def _validated_offsets(
             dist, idx = tree.query(q, k=m, workers=-1)
             dist, idx = dist.reshape(len(t), m), idx.reshape(len(t), m)
             near = (idx[:, 0] != t) & (dist[:, 0] < d[t] * (1 - 1e-9))
-            rel = q[:, None, :] - p[idx]
-            h = np.einsum("kmd,kmd->km", rel, n[idx])
-            t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 0.0)
-            height = np.abs(h + 0.5 * kappa[idx] * t2)
-            patch = (idx != t[:, None]) & (t2 <= rho[idx] ** 2)
-            patch &= height < _PATCH_CLEAR * d[t, None]
-            bad[lo : lo + _CHUNK] = near | patch.any(axis=1)
+            if patches is not None:
+                near |= _on_another_patch(q, t, idx, d[t], p, n, *patches)
+            bad[lo : lo + _CHUNK] = near
         todo = todo[bad]
         if len(todo) == 0:
             break

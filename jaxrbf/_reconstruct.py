@@ -414,6 +414,8 @@ def fit_surface_samples(
             log("noisy input: the fit approximates, with the smoothing chosen by held-out error")
     else:
         denoise = auto_flag(denoise, "denoise", False)
+    # the fit approximates: the samples scatter about their surface
+    approximate = bool(denoise or smoothing)
     dim = c.points.shape[1]
     surface = np.asarray(c.points[: c.n_surface])
     method = choose_method(method, len(c.points) + n_poly(degree, dim), verbose)
@@ -434,9 +436,7 @@ def fit_surface_samples(
             p, n, rebuild = np.concatenate([p, cap]), np.concatenate([n, cap_n]), True
     if kernel is None:
         # samples interpolated with the normals they came with: a mesh's creases are in them
-        kernel = default_kernel(
-            dim, method, len(surface), exact=given and not (denoise or smoothing)
-        )
+        kernel = default_kernel(dim, method, len(surface), exact=given and not approximate)
     cls = type(kernel) if isinstance(kernel, AbstractKernel) else kernel_class(kernel)
     r = None
     if cls.has_radius and not isinstance(kernel, AbstractKernel):
@@ -468,7 +468,7 @@ def fit_surface_samples(
         # A noisy cloud, which the fit approximates, keeps every sample: there the buried test
         # also fires in gaps narrower than its 4 spacings (on a real scan of a machine part, 6
         # samples, whose removal grew 1.4% more surface far from the data).
-        exact = not (denoise or smoothing)
+        exact = not approximate
         if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
         vc = volume_constraints(p, n, rims=exact, close=True, bury=exact)
@@ -484,14 +484,12 @@ def fit_surface_samples(
             fitted_p = np.concatenate([p, vc.closing])
             fitted_n = np.concatenate([n, vc.closing_normals])
             rebuild = True
-    if denoise or smoothing:
-        # an approximated cloud's samples scatter about the surface: its off-surface points are
-        # validated against the samples only (`Constraints.from_points(between=False)`)
+    if approximate != bool(noisy):
+        # `_sampled` validated against the surface between the samples where they are not noisy;
+        # the fit's own choice decides (`Constraints.from_points(between=...)`)
         rebuild = True
     if rebuild:  # once, whatever asked for it
-        c = Constraints.from_points(
-            fitted_p, fitted_n, frac * diag, between=not (denoise or smoothing)
-        )
+        c = Constraints.from_points(fitted_p, fitted_n, frac * diag, between=not approximate)
     if vc is not None:
         c = c.with_volume(vc.points, vc.values)
     if verbose:

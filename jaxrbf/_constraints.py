@@ -299,6 +299,29 @@ class Constraints(eqx.Module):
             n_volume=len(values),
         )
 
+    def without_off_surface(self, drop) -> Constraints:
+        """These constraints less the off-surface points where `drop` (a mask over the
+        off-surface points, in their order) is True; they count as dropped."""
+        drop = np.asarray(drop, dtype=bool)
+        lo, hi = self.n_surface, self.points.shape[0] - self.n_volume
+        if drop.shape != (hi - lo,):
+            raise ValueError(f"`drop` must mask the {hi - lo} off-surface points, got {drop.shape}")
+        keep = np.concatenate([np.ones(lo, bool), ~drop, np.ones(self.n_volume, bool)])
+        return Constraints(
+            self.points[keep],
+            self.values[keep],
+            n_surface=self.n_surface,
+            n_shrunk=self.n_shrunk,
+            n_dropped=self.n_dropped + int(drop.sum()),
+            n_merged=self.n_merged,
+            n_volume=self.n_volume,
+        )
+
+    def off_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """The off-surface points and their values (positive outside), as host arrays."""
+        lo, hi = self.n_surface, self.points.shape[0] - self.n_volume
+        return np.asarray(self.points[lo:hi]), np.asarray(self.values[lo:hi])
+
     def report(self) -> str:
         """One line that says what the constraints hold."""
         line = f"{self.points.shape[0]:,} constraints ({self.n_surface:,} on the surface)"

@@ -490,6 +490,22 @@ def fit_surface_samples(
         rebuild = True
     if rebuild:  # once, whatever asked for it
         c = Constraints.from_points(fitted_p, fitted_n, frac * diag, between=not approximate)
+    if vc is not None and not approximate and vc.tree is not None:
+        from ._winding import contradicted
+
+        # An off-surface point the winding number clearly puts on the other side of the surface
+        # (an outside point of a hidden face that ends inside the body, an inside point of a
+        # folded fin's flipped triangle) would pull the surface out to it: it is dropped.
+        # Exact fits only: a noisy cloud's w is no sharper than its scatter.
+        q, v = c.off_surface()
+        against = contradicted(q, v > 0, vc.tree)
+        if against.any():
+            c = c.without_off_surface(against)
+            if verbose:
+                log(
+                    f"{int(against.sum()):,} off-surface points dropped: the winding number puts "
+                    "them on the other side of the surface"
+                )
     if vc is not None:
         c = c.with_volume(vc.points, vc.values)
     if verbose:

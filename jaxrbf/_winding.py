@@ -310,7 +310,8 @@ class VolumeConstraints(NamedTuple):
     docstring). `undecided`: how many have a winding number within `RAMP` of 1/2 (over holes,
     past open boundaries). `closing` / `closing_normals`: samples of the winding number's
     closing surface where the data stop (`closing_samples`; empty unless asked for).
-    `near_rims`, `shell`: how many of the points are `rim_probes` and `shell_probes`."""
+    `near_rims`, `shell`: how many of the points are `rim_probes` and `shell_probes`. `tree`:
+    the samples' winding tree that valued them (for `contradicted`)."""
 
     points: np.ndarray
     values: np.ndarray
@@ -320,6 +321,7 @@ class VolumeConstraints(NamedTuple):
     closing_normals: np.ndarray = np.zeros((0, 3))
     buried: np.ndarray = np.zeros(0, dtype=bool)
     shell: int = 0
+    tree: WindingTree | None = None
 
     def summary(self) -> str:
         inside = int(np.sum(self.values < 0))
@@ -497,8 +499,18 @@ def volume_constraints(
             w, grad = w + w_c, grad + g_c
             values = signed_values(w, grad, dist)
     return VolumeConstraints(
-        probes, values, int(np.sum(undecided)), n_rim, *closing, buried, shell=n_shell
+        probes, values, int(np.sum(undecided)), n_rim, *closing, buried, shell=n_shell, tree=wtree
     )
+
+
+def contradicted(points, outside, wtree: WindingTree) -> np.ndarray:
+    """Which off-surface points (`points` (m, 3), `outside` (m,) True for those placed along
+    their sample's normal) lie where the winding number `wtree` clearly says the other side:
+    w > 1/2 + `RAMP` for an outside point, w < 1/2 - `RAMP` for an inside one. Within `RAMP` of
+    1/2 (beside a hole, past an open boundary) w gives no side, and the point is not judged."""
+    w = winding_number(points, None, None, tree=wtree)
+    out = np.asarray(outside, dtype=bool)
+    return np.where(out, w > 0.5 + RAMP, w < 0.5 - RAMP)
 
 
 def buried_samples(

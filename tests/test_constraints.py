@@ -173,3 +173,20 @@ def test_errors():
         Constraints.from_polyline(np.array([[0.0, 0], [1, 0], [1, 0], [0, 1]]), closed=True)
     with pytest.raises(InputError, match="needs at least 3 distinct vertices"):
         Constraints.from_polyline(np.array([[0.0, 0], [1, 0]]), closed=True)
+
+
+def test_off_surface_points_can_be_dropped_and_are_counted():
+    p, n = sphere(100)
+    c = Constraints.from_points(p, n, offset=0.1).with_volume(np.zeros((2, 3)), [-1.0, -1.0])
+    q, v = c.off_surface()
+    np.testing.assert_allclose(q, np.asarray(c.points)[100:300])
+    drop = np.zeros(200, bool)
+    drop[[3, 150]] = True
+    d = c.without_off_surface(drop)
+    assert d.n_dropped == c.n_dropped + 2 and d.n_surface == 100 and d.n_volume == 2
+    assert np.asarray(d.points).shape == (300, 3) and "2 off-surface points dropped" in d.report()
+    kept, _ = d.off_surface()
+    np.testing.assert_allclose(kept, q[~drop])
+    np.testing.assert_allclose(np.asarray(d.values)[-2:], -1.0)  # the volume constraints stay
+    with pytest.raises(ValueError, match="mask the 200 off-surface points"):
+        c.without_off_surface(np.zeros(10, bool))

@@ -445,6 +445,10 @@ def test_off_surface_points_on_the_wrong_side_of_the_winding_number_are_found():
     clear[6000:] = np.linalg.norm(s, axis=1) > 1 + 6 * spacing
     assert bad[: len(q)][sunk].all() and not bad[: len(q)][clear].any()
     assert not bad[len(q) :][sunk | clear].any()
+    # judged from a subset of a quarter and grown from what it finds: the same points (the
+    # sunk samples' outside points are one cluster)
+    qq = np.concatenate([q + d * qn, q - d * qn])
+    assert np.array_equal(winding.contradicted(qq, outside, wtree, tested=len(qq) // 4), bad)
     # the big sphere's own points away from the small one are not judged wrong
     away = (np.arange(len(q)) < 6000) & (
         np.linalg.norm(q - [1.0, 0, 0], axis=1) > 0.3 + 6 * spacing

@@ -471,7 +471,15 @@ def fit_surface_samples(
         exact = not approximate
         if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
-        vc = volume_constraints(p, n, rims=exact, close=True, bury=exact)
+        vc = volume_constraints(p, n, rims=exact, close=True, bury=exact, orient=True)
+        if vc.flipped:
+            # every normal pointed into the solid: the fit, the volume constraints and the
+            # output's orientation want them out
+            n, rebuild = -n, True
+            log(
+                "the normals point into the solid (the samples' winding number reads about "
+                "-1/2 at them, not +1/2): flipped, so that they point out"
+            )
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
         if vc.buried.any():

@@ -476,3 +476,35 @@ def test_samples_with_flipped_normals_do_not_bulge_the_surface(monkeypatch):
     # kept (a bump out or a dent in at each flipped sample)
     monkeypatch.setattr(winding, "contradicted", lambda q, out, t: np.zeros(len(q), bool))
     assert dropped < 0.075 and worst() > 1.4 * dropped
+
+
+def test_normals_that_all_point_inward_are_found():
+    p = _sphere(3000)
+    h = _hemisphere(3000)
+    disc = np.column_stack([np.random.default_rng(1).uniform(-1, 1, (3000, 2)), np.zeros(3000)])
+    up = np.tile([0, 0, 1.0], (3000, 1))
+    for pts, out in ((p, p), (h, h)):
+        assert not winding.points_inward(pts, winding_tree(pts, out, calibrated_areas(pts, out)))
+        assert winding.points_inward(pts, winding_tree(pts, -out, calibrated_areas(pts, -out)))
+    # a flat sheet has no inside: either way is left as it is
+    for n in (up, -up):
+        assert not winding.points_inward(disc, winding_tree(disc, n, calibrated_areas(disc, n)))
+    # a subset reads the same median
+    t = winding_tree(p, -p, calibrated_areas(p, -p))
+    assert winding.points_inward(p, t, tested=300)
+    vc = volume_constraints(p, -p, orient=True)
+    assert vc.flipped and np.all(vc.values[np.linalg.norm(vc.points, axis=1) < 0.9] < 0)
+    assert not volume_constraints(p, p, orient=True).flipped
+
+
+@pytest.mark.slow
+def test_a_cloud_whose_normals_all_point_inward_gives_the_same_surface(capsys):
+    # before: the volume constraints read "outside" everywhere (w = -1 inside), the fit was
+    # positive at the centre and the mesh bulged to r = 1.34
+    p = _sphere(3000)
+    model, samples, normals = fit_surface_samples(p, -p)
+    assert "normals point into the solid" in capsys.readouterr().err
+    assert np.all(np.sum(normals * samples, axis=1) > 0)
+    assert float(model(np.zeros((1, 3)))[0]) < 0
+    r = np.linalg.norm(mesh_fit(model, samples, resolution=48).vertices, axis=1)
+    assert np.abs(r - 1).max() < 0.01

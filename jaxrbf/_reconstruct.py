@@ -381,6 +381,10 @@ def fit_surface_samples(
     Samples with the inside on both of their sides (`jaxrbf._winding.buried_samples`: walls
     inside another piece) are left out of the fit and of the samples returned, unless the fit
     approximates a noisy cloud.
+    With them, normals that all point into the solid (the samples' winding number reads about
+    -1/2 at them instead of +1/2: `jaxrbf._winding.points_inward`) are turned out first, with a
+    line on stderr, and off-surface points that the winding number clearly puts on the other
+    side of the surface are dropped (exact fits only: `jaxrbf._winding.contradicted`).
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background

@@ -565,23 +565,32 @@ def contradicted(points, outside, wtree: WindingTree, tested: int | None = None)
         w = winding_number(q[idx], None, None, tree=wtree)
         return idx[np.where(out[idx], w > 0.5 + RAMP, w < 0.5 - RAMP)]
 
-    bad = np.zeros(len(q), dtype=bool)
-    if len(q) <= tested:
-        bad[judge(np.arange(len(q)))] = True
-        return bad
-    done = np.zeros(len(q), dtype=bool)
-    todo = np.random.default_rng(0).choice(len(q), tested, replace=False)
-    # a few of the subset's spacings: every point near one found is judged next
-    reach = 2.0 * float(np.median(cKDTree(q[todo]).query(q[todo], k=2)[0][:, 1]))
+    return _found_from_subset(q, judge, tested)
+
+
+def _found_from_subset(points, judge, tested: int, reach: float | None = None) -> np.ndarray:
+    """Which of `points` `judge` (indices in, the indices it finds out) finds: it judges all of
+    them up to `tested` points; beyond, a random subset of that size, then the points within
+    `reach` (default: twice the subset's median spacing) of those found, and so on while more
+    are found. What is sought comes in clusters (a buried wall, a fin), which a subset still
+    hits."""
+    hits = np.zeros(len(points), dtype=bool)
+    if len(points) <= tested:
+        hits[judge(np.arange(len(points)))] = True
+        return hits
+    done = np.zeros(len(points), dtype=bool)
+    todo = np.random.default_rng(0).choice(len(points), tested, replace=False)
+    if reach is None:
+        reach = 2.0 * float(np.median(cKDTree(points[todo]).query(points[todo], k=2)[0][:, 1]))
     while len(todo):
         done[todo] = True
         found = judge(todo)
-        bad[found] = True
+        hits[found] = True
         if len(found) == 0:
             break
-        near = cKDTree(q[found]).query(q, distance_upper_bound=reach)[0] < reach
+        near = cKDTree(points[found]).query(points, distance_upper_bound=reach)[0] < reach
         todo = np.flatnonzero(near & ~done)
-    return bad
+    return hits
 
 
 def buried_samples(
@@ -616,21 +625,8 @@ def buried_samples(
         idx = idx[winding_number(points[idx] + step[idx], None, None, tree=wtree) > BURIED_LEVEL]
         return idx[winding_number(points[idx] - step[idx], None, None, tree=wtree) > BURIED_LEVEL]
 
-    buried = np.zeros(len(points), dtype=bool)
-    if len(points) <= BURIED_TESTED:
-        buried[test(np.arange(len(points)))] = True
-        return _buried_to_the_seam(points, spacing, wtree, buried, tree)
-    tested = np.zeros(len(points), dtype=bool)
-    todo = np.random.default_rng(0).choice(len(points), BURIED_TESTED, replace=False)
     reach = 2 * np.sqrt(len(points) / BURIED_TESTED) * spacing  # a few subset spacings
-    while len(todo):
-        tested[todo] = True
-        found = test(todo)
-        buried[found] = True
-        if len(found) == 0:
-            break
-        near = cKDTree(points[found]).query(points, distance_upper_bound=reach)[0] < reach
-        todo = np.flatnonzero(near & ~tested)
+    buried = _found_from_subset(points, test, BURIED_TESTED, reach)
     return _buried_to_the_seam(points, spacing, wtree, buried, tree)
 
 

@@ -502,7 +502,7 @@ def fit_surface_samples(
         rebuild = True
     if rebuild:  # once, whatever asked for it
         c = Constraints.from_points(fitted_p, fitted_n, frac * diag, between=not approximate)
-    if vc is not None and not approximate and vc.tree is not None:
+    if vc is not None and not approximate:
         from ._winding import contradicted
 
         # An off-surface point the winding number clearly puts on the other side of the surface

@@ -551,8 +551,9 @@ def contradicted(points, outside, wtree: WindingTree, tested: int | None = None)
     w > 1/2 + `RAMP` for an outside point, w < 1/2 - `RAMP` for an inside one. Within `RAMP` of
     1/2 (beside a hole, past an open boundary) w gives no side, and the point is not judged.
 
-    Cost: one w per point (2 s per 40,000 points on 2 cores: they lie a couple of spacings
-    off the samples, where the sum is mostly exact). Beyond `tested` points (default
+    Cost: one w per point (2 s per 40,000 points on 2 cores at 100,000 samples, ten times that
+    at 1M: the far field is a sum over the tree's groups, whose count grows with the samples).
+    Beyond `tested` points (default
     `CONTRADICTED_TESTED`) a random subset of that size is judged first, then the points near
     those found, and so on while more are found, as `buried_samples` does: what pulls a surface
     out of shape is a cluster of such points (a fin, a hidden face), which a subset of 1 in 10

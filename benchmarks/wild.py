@@ -47,6 +47,12 @@ skipped, and the skipped ones are listed at the end):
    the file as is; Open3D gets the same points and estimates its normals
    (`estimate_normals(KDTreeSearchParamKNN(30))`, `orient_normals_consistent_tangent_plane(30)`,
    timed together with Poisson). The reference is the mesh.
+   The same scanner with the scanner's own normals (`nscan-cow`, `nscan-spot`: a range scan as
+   structured-light and laser scanners deliver it, with normals): each view's normals are
+   estimated from that view's noisy points alone (`estimate_normals(KDTreeSearchParamKNN(30))`,
+   turned towards that view's camera: `orient_normals_towards_camera_location`), before its
+   misregistration, which turns them with the points; written as a PLY with nx ny nz. Both
+   methods get the same points and normals.
 3. the two real bare clouds `scanned-leg.xyz` (`leg`) and `anchor.xyz` (`anchor`): no normals
    and no reference surface. jaxrbf gets the file; Open3D as in 2.
 
@@ -150,7 +156,8 @@ HOLES = 12  # holes cut out of a closed mesh (kind "holed")
 @dataclass(frozen=True)
 class Input:
     name: str
-    kind: str  # "mesh": sampled with true normals; "scan": virtual scanner; "cloud": a real scan
+    kind: str  # "mesh": sampled with true normals; "scan": virtual scanner ("nscan": with the
+    # scanner's normals); "cloud": a real scan
     file: str
     points: int = 0  # surface samples, for kinds "mesh" and "holed"
 
@@ -161,6 +168,8 @@ class Input:
             return f"{self.points:,} samples of {self.file} with {HOLES} holes cut, true normals"
         if self.kind == "scan":
             return f"virtual range scan of {self.file} ({SCAN_VIEWS} views), no normals"
+        if self.kind == "nscan":
+            return f"virtual range scan of {self.file} ({SCAN_VIEWS} views), scanner normals"
         return f"{self.file} as is, no normals, no reference"
 
 
@@ -181,6 +190,8 @@ INPUTS = (
     Input("scan-fandisk", "scan", "fandisk.obj"),
     Input("scan-spot", "scan", "spot.obj"),
     Input("scan-teapot", "scan", "teapot.obj"),
+    Input("nscan-cow", "nscan", "cow.obj"),
+    Input("nscan-spot", "nscan", "spot.obj"),
     Input("leg", "cloud", "scanned-leg.xyz"),
     Input("anchor", "cloud", "anchor.xyz"),
 )
@@ -194,12 +205,20 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def virtual_scan(mesh, seed: int) -> tuple[np.ndarray, dict]:
+def virtual_scan(mesh, seed: int, normals: bool = False) -> tuple[np.ndarray, dict]:
     """A simulated multi-view range scan of `mesh` (see the module docstring for the model).
 
     Returns (points (n, 3) in the mesh's units, per-scan statistics: among them `unseen`, the
     share of the surface (of SCAN_POINTS area-uniform samples) farther than FAR from every scan
-    point)."""
+    point). With `normals`, (points, normals, statistics): each view's normals estimated from
+    that view's own noisy points, as a scanner's software does from its range image (Open3D's
+    `estimate_normals` with NORMAL_KNN neighbours, turned towards that view's camera), then
+    misregistered with them."""
+    points, stats, est = _virtual_scan(mesh, seed, normals)
+    return (points, est, stats) if normals else (points, stats)
+
+
+def _virtual_scan(mesh, seed: int, with_normals: bool):
     import open3d as o3d
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
@@ -221,7 +240,7 @@ def virtual_scan(mesh, seed: int) -> tuple[np.ndarray, dict]:
         [cos_el * np.cos(azimuth), sin_el, cos_el * np.sin(azimuth)], axis=1
     )
     cos_max = np.cos(np.radians(SCAN_MAX_INCIDENCE))
-    views, hits, grazing = [], 0, 0
+    views, view_normals, hits, grazing = [], [], 0, 0
     for eye, s in zip(eyes, sin_el, strict=True):
         up = [0.0, 1.0, 0.0] if abs(s) < 0.99 else [1.0, 0.0, 0.0]
         rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
@@ -249,10 +268,19 @@ def virtual_scan(mesh, seed: int) -> tuple[np.ndarray, dict]:
         axis = _unit(rng.normal(size=3))
         angle = np.radians(rng.uniform(*SCAN_ROTATION))
         shift = SCAN_TRANSLATION * _unit(rng.normal(size=3))
-        views.append(Rotation.from_rotvec(angle * axis).apply(p) + shift)
+        turn = Rotation.from_rotvec(angle * axis)
+        views.append(turn.apply(p) + shift)
+        if with_normals:  # from this view's points alone, before its misregistration
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+            pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_KNN))
+            pc.orient_normals_towards_camera_location(eye)
+            view_normals.append(turn.apply(np.asarray(pc.normals)))
     pooled = np.concatenate(views)
+    est = np.concatenate(view_normals) if with_normals else None
     if len(pooled) > SCAN_POINTS:
-        pooled = pooled[np.sort(rng.choice(len(pooled), SCAN_POINTS, replace=False))]
+        pick = np.sort(rng.choice(len(pooled), SCAN_POINTS, replace=False))
+        pooled = pooled[pick]
+        est = est[pick] if with_normals else None
     surface, _ = metrics.sample_surface(mesh, SCAN_POINTS, seed=seed + 2)
     gap = cKDTree(pooled).query((surface - centre) / diag, workers=-1)[0]
     stats = dict(
@@ -265,7 +293,7 @@ def virtual_scan(mesh, seed: int) -> tuple[np.ndarray, dict]:
         points=len(pooled),
         unseen=float(np.mean(gap > FAR)),
     )
-    return pooled * diag + centre, stats
+    return pooled * diag + centre, stats, est
 
 
 def cut_holes(mesh, count: int, seed: int):
@@ -301,6 +329,11 @@ def prepare(inp: Input, workdir: Path, seed: int):
         out = workdir / f"{inp.name}.ply"
         io.write_points(out, points, normals)
         return out, points, normals, ref, truth if inp.kind == "holed" else None, {}
+    if inp.kind == "nscan":
+        points, normals, stats = virtual_scan(ref, seed, normals=True)
+        out = workdir / f"{inp.name}.ply"
+        io.write_points(out, points, normals)
+        return out, points, normals, ref, truth, dict(scan=stats)
     points, stats = virtual_scan(ref, seed)
     out = workdir / f"{inp.name}.xyz"
     io.write_points(out, points)

@@ -298,6 +298,33 @@ def test_coarse_levels_rebuilt_with_their_own_offset(monkeypatch):
     assert np.all(np.sign(np.asarray(pu(far[keep]))) == np.sign(r[keep] - 1))
 
 
+def test_every_volume_constraint_lies_in_some_level_s_patches(monkeypatch):
+    """Volume constraints that no level's surface patches hold (the core of a thick part, far
+    from every sample) get patches of their own on the last level above the global base, so
+    that the base's global fit, which holds only a few of them, never decides their sign."""
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(4000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    g = np.stack(np.meshgrid(*[np.linspace(-1.8, 1.8, 19)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    r = np.linalg.norm(g, axis=1)
+    probes = g[(r < 0.6) | (r > 1.3)]
+    values = np.linalg.norm(probes, axis=1) - 1.0
+    c = jaxrbf.Constraints.from_points(p, p, 0.004).with_volume(probes, values)
+    monkeypatch.setattr(_partition, "COARSE_SURFACE_MIN", 100)
+    monkeypatch.setattr(_partition, "BASE_SIZE", 1500)
+    monkeypatch.setattr(_partition, "BASE_VOLUME", 100)
+    pu = jaxrbf.fit(c, method="partition")
+    levels = [pu]
+    while isinstance(levels[-1].background, PartitionModel):
+        levels.append(levels[-1].background)
+    covered = np.max([np.asarray(m.coverage(probes)) for m in levels], axis=0)
+    assert np.all(covered >= TAU)
+    # and f has their sign, between them too (the core, where only they speak)
+    core = rng.uniform(-0.35, 0.35, (500, 3))
+    assert np.all(np.asarray(pu(probes)) * values > 0)
+    assert np.all(np.asarray(pu(core)) < 0)
+
+
 @pytest.mark.slow
 def test_coverage_marks_the_data(models, torus_constraints):
     # The finest level's weight sum is the blend's own: >= TAU at every surface sample, and 0

@@ -205,20 +205,15 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def virtual_scan(mesh, seed: int, normals: bool = False) -> tuple[np.ndarray, dict]:
+def virtual_scan(mesh, seed: int, with_normals: bool = False):
     """A simulated multi-view range scan of `mesh` (see the module docstring for the model).
 
-    Returns (points (n, 3) in the mesh's units, per-scan statistics: among them `unseen`, the
-    share of the surface (of SCAN_POINTS area-uniform samples) farther than FAR from every scan
-    point). With `normals`, (points, normals, statistics): each view's normals estimated from
+    Returns (points (n, 3) in the mesh's units, normals or None, per-scan statistics: among
+    them `unseen`, the share of the surface (of SCAN_POINTS area-uniform samples) farther than
+    FAR from every scan point). The normals (`with_normals`) are each view's, estimated from
     that view's own noisy points, as a scanner's software does from its range image (Open3D's
     `estimate_normals` with NORMAL_KNN neighbours, turned towards that view's camera), then
     misregistered with them."""
-    points, stats, est = _virtual_scan(mesh, seed, normals)
-    return (points, est, stats) if normals else (points, stats)
-
-
-def _virtual_scan(mesh, seed: int, with_normals: bool):
     import open3d as o3d
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
@@ -293,7 +288,7 @@ def _virtual_scan(mesh, seed: int, with_normals: bool):
         points=len(pooled),
         unseen=float(np.mean(gap > FAR)),
     )
-    return pooled * diag + centre, stats, est
+    return pooled * diag + centre, est, stats
 
 
 def cut_holes(mesh, count: int, seed: int):
@@ -329,15 +324,10 @@ def prepare(inp: Input, workdir: Path, seed: int):
         out = workdir / f"{inp.name}.ply"
         io.write_points(out, points, normals)
         return out, points, normals, ref, truth if inp.kind == "holed" else None, {}
-    if inp.kind == "nscan":
-        points, normals, stats = virtual_scan(ref, seed, normals=True)
-        out = workdir / f"{inp.name}.ply"
-        io.write_points(out, points, normals)
-        return out, points, normals, ref, truth, dict(scan=stats)
-    points, stats = virtual_scan(ref, seed)
-    out = workdir / f"{inp.name}.xyz"
-    io.write_points(out, points)
-    return out, points, None, ref, truth, dict(scan=stats)
+    points, normals, stats = virtual_scan(ref, seed, with_normals=inp.kind == "nscan")
+    out = workdir / f"{inp.name}.{'ply' if normals is not None else 'xyz'}"
+    io.write_points(out, points, normals)
+    return out, points, normals, ref, truth, dict(scan=stats)
 
 
 # --- the two methods --------------------------------------------------------------------------

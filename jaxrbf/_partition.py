@@ -629,8 +629,9 @@ BASE_VOLUME = 3000
 
 
 def coverage_at(origin: np.ndarray, radius: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """The patches' total weight sum_i psi_i at the points `q` (host arrays, normalised units):
-    where it is below `TAU` the fallback takes over (see the module docstring)."""
+    """The patches' total weight sum_i psi_i at the points `q` (host arrays, normalised units),
+    from the patches' balls alone (before their fits, unlike `PartitionModel.coverage`): where
+    it is below `TAU` the fallback takes over (see the module docstring)."""
     w = np.zeros(len(q))
     if len(q) == 0 or len(origin) == 0:
         return w
@@ -640,8 +641,8 @@ def coverage_at(origin: np.ndarray, radius: np.ndarray, q: np.ndarray) -> np.nda
         return w
     qi = np.concatenate([np.asarray(x, dtype=np.int64) for x in hits])
     pi = np.repeat(np.arange(len(origin)), counts)
-    t = np.linalg.norm(q[qi] - origin[pi], axis=1) / radius[pi]
-    psi = np.where(t < 1.0, (1.0 - t) ** 4 * (4.0 * t + 1.0), 0.0)
+    t2 = np.sum((q[qi] - origin[pi]) ** 2, axis=1) / radius[pi] ** 2
+    psi = np.asarray(wendland_weight(jnp.asarray(t2)))
     return np.bincount(qi, psi, minlength=len(q))
 
 

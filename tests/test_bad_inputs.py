@@ -656,6 +656,7 @@ def _script(*argv, cwd):
     )
 
 
+@pytest.mark.slow
 def test_script_hostile_size_and_bad_option(tmp_path):
     (tmp_path / "huge.npz").write_bytes(b"")
     with zipfile.ZipFile(tmp_path / "huge.npz", "w") as z:

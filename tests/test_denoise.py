@@ -46,6 +46,7 @@ def test_noise_gets_smoothing_and_clean_input_does_not():
     assert np.isclose(r_noisy.smoothing, r_noisy.relative * unit, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_every_lambda_from_one_eigendecomposition_matches_the_held_out_error():
     """The path of fits from one eigendecomposition gives, at each lambda, what the tuning
     objective (`held_out_error`, one LU solve per fit) gives on the same split."""

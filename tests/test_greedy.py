@@ -39,6 +39,7 @@ def _check_report(rep: GreedyReport, model):
     return resid
 
 
+@pytest.mark.slow
 def test_meets_tol_with_fewer_centres():
     tol = 2e-2 * OFFSET
     model, rep = greedy_fit(C, tol=tol)

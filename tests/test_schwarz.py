@@ -134,6 +134,7 @@ def test_cg_iteration_cap():
         jaxrbf.fit(_torus_constraints(), solver="cg", max_steps=2)
 
 
+@pytest.mark.slow
 def test_matrix_free_cg_matches_stored():
     # above the dense limit CG applies C block by block instead of storing it: same answer
     kernel, x, h, s, degree, d = _torus_system()

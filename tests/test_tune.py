@@ -141,6 +141,7 @@ def test_tune_fast_path_follows_forward_mode():
     assert fast.path[-1]["offset"] != pytest.approx(fast.path[0]["offset"], rel=1e-3)
 
 
+@pytest.mark.slow
 def test_tune_improves_and_reports():
     model, report = jaxrbf.tune(P, N, kernel="gaussian", radius=0.25, max_steps=4)
     assert isinstance(model, jaxrbf.RBFModel)

@@ -187,6 +187,7 @@ def test_the_holes_of_an_open_tube_close_across_its_rims_each_with_the_other_clo
     assert abs(top / (np.pi * (0.5 - CLOSE_CLEAR * s) ** 2) - 1) < 0.05
 
 
+@pytest.mark.slow
 def test_a_re_closed_hole_does_not_grow_a_copy_of_another_holes_closing():
     # a unit sphere without its cap above z = 0.75: its closing (the disc at the rim, where w
     # = 1/2 by symmetry) comes in two pieces, a large one and a few samples beside it; re-closed

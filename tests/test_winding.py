@@ -17,6 +17,8 @@ from jaxrbf._winding import (
     buried_samples,
     calibrated_areas,
     closing_areas,
+    closing_level,
+    closing_samples,
     sample_areas,
     shell_probes,
     unit_jump,
@@ -163,6 +165,65 @@ def test_closing_samples_lie_on_a_holes_closing_surface_and_face_out():
     closed = _sphere(3000)
     assert len(volume_constraints(closed, closed, close=True).closing) == 0
     assert len(volume_constraints(p, p).closing) == 0  # only when asked
+
+
+def _box_with_a_well(n, seen_from, r=0.4, seed=0):
+    """Samples of the solid box [-1, 1]^3 with a well of radius `r` drilled from its top face
+    down to z = 0, whose wall was seen only above z = `seen_from` and whose floor not at all (a
+    pocket no view of a scan reached into), with their outward normals."""
+    rng = np.random.default_rng(seed)
+    m = int(0.85 * n)
+    face, uv = rng.integers(0, 6, m), rng.uniform(-1, 1, (m, 2))
+    axis, sign = face // 2, np.where(face % 2, 1.0, -1.0)
+    p, nrm = np.zeros((m, 3)), np.zeros((m, 3))
+    for a in range(3):
+        on = axis == a
+        p[np.ix_(on, [b for b in range(3) if b != a])] = uv[on]
+        p[on, a] = nrm[on, a] = sign[on]
+    keep = ~((axis == 2) & (sign > 0) & (np.hypot(p[:, 0], p[:, 1]) < r))
+    t, z = rng.uniform(0, 2 * np.pi, n - m), rng.uniform(seen_from, 1, n - m)
+    radial = np.stack([np.cos(t), np.sin(t), 0 * t], 1)
+    wall = r * radial + z[:, None] * [0, 0, 1]
+    return np.concatenate([p[keep], wall]), np.concatenate([nrm[keep], -radial])
+
+
+def test_a_pocket_no_view_reached_closes_deeper_on_the_surfaces_own_level():
+    # a well whose lower part and floor were never seen: w = 1/2 closes it at the seen wall's
+    # lower edge (z about 0.58), where the well's walls around still read w above 1/2; on the
+    # level the surface itself stands on (`closing_level`: 0.63-0.65 there) the closing lies
+    # deeper, towards the true floor (measured: median z 0.49, lowest 0.37), and stays in the
+    # well
+    p, n = _box_with_a_well(12000, seen_from=0.6)
+    tree = cKDTree(p)
+    spacing = np.median(tree.query(p, k=2)[0][:, 1])
+    wtree = winding_tree(p, n, calibrated_areas(p, n, tree=tree, spacing=spacing))
+    level = closing_level(p, n, spacing, wtree, tree)
+    rim = p[(np.hypot(p[:, 0], p[:, 1]) < 0.45) & (np.abs(p[:, 2] - 0.6) < 0.1)]
+    assert np.median(level(rim)) > 0.6
+    face = level(p[np.abs(p[:, 0]) > 0.999])  # the box's side faces, away from the well
+    assert np.median(face) < 0.505 and np.quantile(face, 0.99) < 0.53
+    seeds = np.stack([np.zeros(20), np.zeros(20), np.linspace(0.0, 0.9, 20)], 1)
+    depth = {}
+    for name, lev in (("half", None), ("own", level)):
+        c, cn = closing_samples(p, seeds, spacing, wtree, tree, lev)
+        assert len(c) > 100 and np.all(np.hypot(c[:, 0], c[:, 1]) < 0.4)
+        assert np.median(cn[:, 2]) > 0.6 and np.all(cn[:, 2] > 0)  # facing up, out of the solid
+        depth[name] = np.median(c[:, 2])
+    assert depth["half"] > 0.55
+    assert depth["own"] < depth["half"] - 0.06 and depth["own"] > 0.2
+
+
+def test_the_closing_level_of_a_closed_or_convex_surface_is_one_half():
+    # a closed sphere stands on w = 1/2; a hole in a convex part reads below 1/2 at its rim
+    # (the missing cap would bulge out), and the level is clipped there, so that a closing never
+    # bulges past the rim (the open hemisphere's test): both read 1/2
+    for p in (_sphere(4000), _sphere(12000)[_sphere(12000)[:, 2] < 0.5][:3000]):
+        tree = cKDTree(p)
+        spacing = np.median(tree.query(p, k=2)[0][:, 1])
+        wtree = winding_tree(p, p, calibrated_areas(p, p, tree=tree, spacing=spacing))
+        level = closing_level(p, p, spacing, wtree, tree)
+        assert len(level.sites) > 0.5 * len(p)
+        assert np.all(np.abs(level(p) - 0.5) < 0.02)
 
 
 def test_the_holes_of_an_open_tube_close_across_its_rims_each_with_the_other_closed():

@@ -374,8 +374,9 @@ def fit_surface_samples(
     spacings off the samples on both sides in every fit), so that f is positive
     outside and negative inside everywhere, not only near the data: an open, multi-part or
     holed input then closes across its holes, without balloons or stray sheets. With them come
-    samples of the closing surface w = 1/2 itself, wherever it lies 3 spacings or more from the
-    samples (`jaxrbf._winding.closing_samples`), fitted like the input's own (but not returned
+    samples of the closing surface itself (w = the surface's own closing level, 1/2 on a
+    closed surface), wherever it lies 3 spacings or more from the samples
+    (`jaxrbf._winding.closing_samples`), fitted like the input's own (but not returned
     as samples, nor counted by the output's check): the fit then closes a hole where the
     winding number does, a smooth membrane, instead of where its coarse levels extrapolate.
     Samples with the inside on both of their sides (`jaxrbf._winding.buried_samples`: walls

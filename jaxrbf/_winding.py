@@ -31,8 +31,15 @@ boundaries, where it passes through 1/2.
   boundaries (`rim_probes`: where the data stop, the octree's shells start too far out), and a
   sparse shell 4.5 spacings off the surface on both sides (`shell_probes`: between the
   off-surface points and the octree's finest shell, where nothing else holds the fit). Each
-  is valued by `signed_values`: positive outside (w < 1/2), negative inside, in magnitude the
-  smaller of its distance to the samples and its first-order distance to the level w = 1/2.
+  is valued by `signed_values`: positive outside (w below the closing level), negative inside,
+  in magnitude the smaller of its distance to the samples and its first-order distance to that
+  level.
+- **Closing level** (`closing_level`): the level of w that the surface itself stands on, the
+  mid-value of w read a few spacings along and against the normals, carried between samples
+  as a local median and clipped to [1/2, 0.7]. It is 1/2 on a closed surface; around a pocket
+  that no view of a scan reached it is higher, and a closing on it recedes into the pocket
+  the way the surface around it does instead of spanning its mouth. Never below 1/2: at the
+  rim of a hole in a convex part the mid-value is lower, and a closing there would bulge out.
   The values continue the off-surface constraints (+/-d at distance d), so f stays close to a
   signed distance everywhere, and over holes and past open boundaries the fit crosses zero
   where the winding number does, with the same unit slope.
@@ -117,13 +124,11 @@ CONTRADICTED_TESTED = 200_000
 ORIENT_TESTED, ORIENT_LEVEL = 20_000, 0.1
 #: The closing level (`closing_level`): w's mid-value across the surface, read `JUMP_SPACINGS`
 #: along and against the normals of up to LEVEL_SAMPLES samples whose two readings are clear of
-#: other samples, interpolated between them from the LEVEL_NEIGHBOURS nearest, clipped to
-#: LEVEL_CLIP.
+#: other samples, carried between them as the median of the LEVEL_NEIGHBOURS nearest, clipped
+#: to LEVEL_CLIP.
 LEVEL_SAMPLES = 20_000
 LEVEL_NEIGHBOURS = 128
 LEVEL_CLIP = (0.5, 0.7)
-import os
-LOCAL_LEVEL = os.environ.get("JAXRBF_LEVEL", "1") == "1"
 
 
 def sample_areas(points: np.ndarray, k: int = AREA_NEIGHBOURS, tree=None) -> np.ndarray:
@@ -329,7 +334,8 @@ class VolumeConstraints(NamedTuple):
     closing surface where the data stop (`closing_samples`; empty unless asked for).
     `near_rims`, `shell`: how many of the points are `rim_probes` and `shell_probes`. `tree`:
     the samples' winding tree that valued them (for `contradicted`). `flipped`: the normals
-    pointed into the solid and were flipped first (`points_inward`)."""
+    pointed into the solid and were flipped first (`points_inward`). `level_median`: the median
+    of the closing level's sites (`closing_level`; 1/2 on a closed surface)."""
 
     points: np.ndarray
     values: np.ndarray
@@ -341,6 +347,7 @@ class VolumeConstraints(NamedTuple):
     shell: int = 0
     tree: WindingTree | None = None
     flipped: bool = False
+    level_median: float = 0.5
 
     def summary(self) -> str:
         inside = int(np.sum(self.values < 0))
@@ -349,7 +356,8 @@ class VolumeConstraints(NamedTuple):
             f"({inside:,} inside, {len(self.values) - inside:,} outside; {self.shell:,} in the "
             f"shell {NEAR_SPACINGS:g} spacings off the samples, {self.near_rims:,} around "
             f"boundaries of the samples, {self.undecided:,} over holes or past open "
-            f"boundaries); {len(self.closing):,} samples of the closing surface w = 1/2"
+            f"boundaries); {len(self.closing):,} samples of the closing surface w = its level "
+            f"(median {self.level_median:.2f})"
             + (
                 f"; {int(self.buried.sum()):,} buried samples (inside on both sides) left out"
                 if self.buried.any()
@@ -455,7 +463,7 @@ def volume_constraints(
         wtree = winding_tree(p, nrm, np.asarray(areas))
     bury = close if bury is None else bury
     buried = buried_samples(p, nrm, spacing, wtree, tree) if bury else np.zeros(len(p), dtype=bool)
-    level = closing_level(p, nrm, spacing, wtree, tree, use=~buried) if LOCAL_LEVEL else ClosingLevel()
+    level = closing_level(p, nrm, spacing, wtree, tree, use=~buried)
     # w with its gradient (they come together): each probe is evaluated once
     w, g = winding_number(probes, None, None, tree=wtree, gradient=True)
     finest *= 1.01
@@ -535,6 +543,7 @@ def volume_constraints(
         shell=n_shell,
         tree=wtree,
         flipped=flipped,
+        level_median=float(np.median(level.levels)) if len(level.levels) else 0.5,
     )
 
 
@@ -688,16 +697,17 @@ def _pack(keys: np.ndarray) -> np.ndarray:
 
 
 def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKDTree, level=None):
-    """Oriented samples of the winding number's closing surface, the level w = 1/2, where it lies
-    at least `CLOSE_CLEAR` spacings from every sample: over holes, past open boundaries, between
-    the pieces of a soup. There the data say nothing, and w = 1/2 is the surface that screened
+    """Oriented samples of the winding number's closing surface, the level w = 1/2 (or the
+    surface's own `level`, a `ClosingLevel`: `closing_level`), where it lies at least
+    `CLOSE_CLEAR` spacings from every sample: over holes, past open boundaries, between the
+    pieces of a soup. There the data say nothing, and w = 1/2 is the surface that screened
     Poisson's indicator would close with (w is the harmonic field of the samples' dipoles): a
     membrane across a hole, flat where the rim is, with no slope carried on from the rim's
     neighbourhood. Given to the fit as ordinary samples, they make it close there and only there.
 
-    From `seeds` (points where w is near 1/2, such as the undecided probes), each moved onto
-    w = 1/2 by Newton steps along grad w, the cells of a lattice of `CLOSE_CELL` spacings that w
-    crosses 1/2 in are grown across the level from neighbour to neighbour (surface tracking
+    From `seeds` (points where w is near the level, such as the undecided probes), each moved
+    onto it by Newton steps along grad w, the cells of a lattice of `CLOSE_CELL` spacings that w
+    crosses the level in are grown across the level from neighbour to neighbour (surface tracking
     on the lattice: w is evaluated at the cells' corners only), and stop where the level comes
     within `CLOSE_CLEAR` spacings of the samples (there it runs into the sampled surface, which
     w passes 1/2 on as well). Each crossed cell gives one sample: the mean of its edges'
@@ -929,8 +939,9 @@ def shell_probes(points, normals, spacing: float, tree: cKDTree) -> tuple[np.nda
 
 class ClosingLevel:
     """The level of w that the surface passes through, as a field: the mid-values `levels`
-    measured at the `sites` (`closing_level`), interpolated by inverse squared distance from the
-    `LEVEL_NEIGHBOURS` nearest. With no sites it is 1/2 everywhere."""
+    measured at the `sites` (`closing_level`), carried between them as the median of the
+    `LEVEL_NEIGHBOURS` nearest (a median, not a weighted mean: one site reading a thin part or
+    a crease does not pull the level of a whole patch). With no sites it is 1/2 everywhere."""
 
     def __init__(self, sites: np.ndarray | None = None, levels: np.ndarray | None = None):
         self.sites = np.zeros((0, 3)) if sites is None else np.asarray(sites, dtype=float)
@@ -946,8 +957,9 @@ class ClosingLevel:
         return np.median(self.levels[i.reshape(len(x), k)], axis=1)
 
 
-def closing_level(points, normals, spacing: float, wtree: WindingTree, tree: cKDTree, use=None,
-                  seed: int = 0) -> ClosingLevel:
+def closing_level(
+    points, normals, spacing: float, wtree: WindingTree, tree: cKDTree, use=None, seed: int = 0
+) -> ClosingLevel:
     """Where the sampled surface passes between w's inside and outside values: at a sample p with
     normal n, the mid-value (w(p + t n) + w(p - t n)) / 2 at t = `JUMP_SPACINGS` spacings (w
     jumps by one turn across the surface, so this is the level the surface itself stands on).
@@ -957,7 +969,7 @@ def closing_level(points, normals, spacing: float, wtree: WindingTree, tree: cKD
     across its mouth and a hole flat across its rim; closed on this level instead, a closing
     continues the surface around it the way the truth does (measured on a virtual scan of spot:
     on its unseen true surface w - 1/2 has median 0.04 and quartiles -0.004 / 0.10, w minus
-    this level -0.007 and -0.036 / 0.014). Read at up to `LEVEL_SAMPLES` samples (those `use`
+    this level (as the median of 128 sites) 0.006). Read at up to `LEVEL_SAMPLES` samples (those `use`
     marks), where neither reading has another sample within `NEAR_CLEAR` of t (not across a
     thin part: there the far reading is outside again), clipped to `LEVEL_CLIP`."""
     p = np.asarray(points, dtype=float)
@@ -982,8 +994,9 @@ def closing_level(points, normals, spacing: float, wtree: WindingTree, tree: cKD
 
 def signed_values(w: np.ndarray, grad: np.ndarray, dist: np.ndarray, level=0.5) -> np.ndarray:
     """The value of a probe with winding number `w` (gradient `grad`) at `dist` from the nearest
-    sample: positive outside (w < 1/2), negative inside, and in magnitude the smaller of `dist`
-    and |w - 1/2| / |grad w|, the first-order distance to the level w = 1/2. Near the data the
+    sample: positive outside (w < `level`, 1/2 or the surface's own closing level per probe),
+    negative inside, and in magnitude the smaller of `dist` and |w - level| / |grad w|, the
+    first-order distance to the closing surface w = level. Near the data the
     two agree; over a hole or past an open boundary the second is the distance to the winding
     number's own closing surface (which spans a hole like a membrane: on the disc that closes an
     open hemisphere, w = 1/2), so the fit crosses zero there with the same unit slope as at its

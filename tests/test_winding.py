@@ -12,6 +12,7 @@ from jaxrbf._winding import (
     CLOSE_CLEAR,
     NEAR_CLEAR,
     NEAR_SPACINGS,
+    ClosingLevel,
     _indexed_tree,
     _without,
     buried_samples,
@@ -224,6 +225,21 @@ def test_the_closing_level_of_a_closed_or_convex_surface_is_one_half():
         level = closing_level(p, p, spacing, wtree, tree)
         assert len(level.sites) > 0.5 * len(p)
         assert np.all(np.abs(level(p) - 0.5) < 0.02)
+
+
+def test_the_closing_level_is_a_local_median_of_its_sites():
+    # one site reading high (a crease, a thin part) does not lift its neighbourhood, as a
+    # weighted mean of the nearest sites would; a patch of sites that read high does
+    rng = np.random.default_rng(0)
+    sites = rng.uniform(-1, 1, (2000, 3))
+    levels = np.full(len(sites), 0.5)
+    levels[0] = 0.7
+    levels[np.linalg.norm(sites - [0.8, 0.8, 0.8], axis=1) < 0.6] = 0.62
+    level = ClosingLevel(sites, levels)
+    assert level(sites[:1])[0] == 0.5
+    assert np.allclose(level([[0.95, 0.95, 0.95]]), 0.62)
+    assert np.allclose(level([[-0.9, -0.9, -0.9]]), 0.5)
+    assert np.allclose(ClosingLevel()(sites[:5]), 0.5)
 
 
 def test_the_holes_of_an_open_tube_close_across_its_rims_each_with_the_other_closed():

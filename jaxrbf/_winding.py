@@ -468,11 +468,13 @@ def volume_constraints(
     w, g = winding_number(probes, None, None, tree=wtree, gradient=True)
     finest *= 1.01
     lo, hi = _probe_box(p)
-    done = [(probes, w, g)]
+    # the level at each probe, evaluated once with its w (a median over LEVEL_NEIGHBOURS sites)
+    lev = level(probes)
+    done = [(probes, w, g, lev)]
     while True:
-        # Where w passes 1/2 far from the data (a hole's cap), the probes' sign changes there:
-        # refine those cells so that the fit's zero crossing follows w = 1/2 closely.
-        cap = (np.abs(w - level(probes)) < RAMP) & (cell > finest)
+        # Where w passes its level far from the data (a hole's cap), the probes' sign changes
+        # there: refine those cells so that the fit's zero crossing follows that level closely.
+        cap = (np.abs(w - lev) < RAMP) & (cell > finest)
         if not cap.any():
             break
         done[-1] = tuple(a[~cap] for a in done[-1])
@@ -481,13 +483,14 @@ def volume_constraints(
         ok = np.all((probes >= lo) & (probes <= hi), axis=1) & (dist >= SHELL[0] * cell)
         probes, cell, dist = probes[ok], cell[ok], dist[ok]
         w, g = winding_number(probes, None, None, tree=wtree, gradient=True)
-        done.append((probes, w, g))
-    probes, w, grad = (np.concatenate([a[k] for a in done]) for k in range(3))
+        lev = level(probes)
+        done.append((probes, w, g, lev))
+    probes, w, grad, lev = (np.concatenate([a[k] for a in done]) for k in range(4))
     # a refined cap cell's children can be probes of the distance shells too: keep one of each
     key = np.round((probes - lo) / (0.25 * finest)).astype(np.int64)
     _, first = np.unique(key, axis=0, return_index=True)
     first = np.sort(first)
-    probes, w, grad = probes[first], w[first], grad[first]
+    probes, w, grad, lev = probes[first], w[first], grad[first], lev[first]
     reach = min(SHELL[0] * finest, RIM_REACH * spacing)
     near = rim_probes(p[rim] if rims else p[:0], spacing, reach, tree)
     shell, shell_out = shell_probes(p[~buried], nrm[~buried], spacing, tree)
@@ -503,15 +506,17 @@ def volume_constraints(
     # bubbles under the unseen base of a scanned bunny; dropping every probe with w within
     # `RAMP` of 1/2 instead lost those that hold an open real scan (anchor: far share 1.78% ->
     # 2.83%).
-    keep = (side == 0) | ((w_near < level(near)) == (side > 0))
+    lev_near = level(near)
+    keep = (side == 0) | ((w_near < lev_near) == (side > 0))
     near, side, w_near, g_near = near[keep], side[keep], w_near[keep], g_near[keep]
+    lev_near = lev_near[keep]
     n_rim, n_shell = int(np.sum(side == 0)), int(np.sum(side != 0))
     probes = np.concatenate([probes, near])
     w, grad = np.concatenate([w, w_near]), np.concatenate([grad, g_near])
+    lev = np.concatenate([lev, lev_near])
     # distances to the samples the fit keeps (a buried sample is no surface to measure from)
     kept = cKDTree(p[~buried]) if buried.any() else tree
     dist, _ = kept.query(probes, workers=-1)
-    lev = level(probes)
     values = signed_values(w, grad, dist, lev)
     undecided = np.abs(w - lev) < RAMP
     closing = (np.zeros((0, 3)), np.zeros((0, 3)))
@@ -710,7 +715,7 @@ def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKD
     crosses the level in are grown across the level from neighbour to neighbour (surface tracking
     on the lattice: w is evaluated at the cells' corners only), and stop where the level comes
     within `CLOSE_CLEAR` spacings of the samples (there it runs into the sampled surface, which
-    w passes 1/2 on as well). Each crossed cell gives one sample: the mean of its edges'
+    w passes its level on as well). Each crossed cell gives one sample: the mean of its edges'
     crossings, moved onto the level by one Newton step, with the outward normal -grad w / |grad w|.
 
     **Returns:** `(samples, normals)`, (m, 3) arrays (m may be 0)."""
@@ -969,9 +974,10 @@ def closing_level(
     across its mouth and a hole flat across its rim; closed on this level instead, a closing
     continues the surface around it the way the truth does (measured on a virtual scan of spot:
     on its unseen true surface w - 1/2 has median 0.04 and quartiles -0.004 / 0.10, w minus
-    this level (as the median of 128 sites) 0.006). Read at up to `LEVEL_SAMPLES` samples (those `use`
-    marks), where neither reading has another sample within `NEAR_CLEAR` of t (not across a
-    thin part: there the far reading is outside again), clipped to `LEVEL_CLIP`."""
+    this level (as the median of 128 sites) 0.006). Read at up to `LEVEL_SAMPLES` samples
+    (those `use` marks), where neither reading has another sample within `NEAR_CLEAR` of t
+    (not across a thin part: there the far reading is outside again), clipped to
+    `LEVEL_CLIP`."""
     p = np.asarray(points, dtype=float)
     n = np.asarray(normals, dtype=float)
     cand = np.flatnonzero(np.ones(len(p), dtype=bool) if use is None else use)

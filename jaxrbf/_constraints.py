@@ -151,6 +151,15 @@ def _validated_offsets(
     return d
 
 
+#: A smoothed fit (smoothing > 0: noisy samples, approximated) adds this fraction of its
+#: smoothing to the rows of the volume constraints: they carry no sample noise, so it holds
+#: them to their values and approximates only the samples. Smoothed with the samples, the local
+#: fits sagged between the probes where nothing else speaks (a virtual scan of a cow with
+#: scanner normals: lobes of surface 0.8% of the diagonal out below the unseen soles of its
+#: hooves and beside its horns; precision at 0.5% 99.82% -> 99.91%, 0.1 of it: 99.90%).
+VOLUME_SMOOTHING = 0.0
+
+
 class Constraints(eqx.Module):
     """Points and the values f must take there.
 
@@ -163,7 +172,7 @@ class Constraints(eqx.Module):
     - `n_volume`: how many of the points (they come last) are volume constraints away from the
       surface, valued by their signed distance to it (`with_volume`, `jaxrbf._winding`). The
       partition of unity gives them to the levels whose patches reach that far, instead of
-      building patches on them.
+      building patches on them. A smoothed fit holds them (`VOLUME_SMOOTHING`).
     """
 
     points: Float[Array, "N d"]

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._constraints import Constraints, log
+from ._constraints import VOLUME_SMOOTHING, Constraints, log
 from ._errors import InputError, SolveError
 from ._model import AbstractModel, RBFModel, n_poly
 from ._prepare import find_duplicates, unit_box_transform
@@ -260,6 +260,8 @@ def fit(
     # The solve runs in the unit box; scale the smoothing so that it means what it means in the
     # input's units (as in scipy's RBFInterpolator): A_unit = A_input / scale^homogeneity.
     smoothing = smoothing / scale**kern.homogeneity
+    if smoothing and n_volume:  # row by row: the volume constraints are held
+        smoothing = np.where(np.arange(n) >= n - n_volume, VOLUME_SMOOTHING, 1.0) * smoothing
     t0 = time.perf_counter()
     if verbose:
         log(f"solving {n + k:,} unknowns: {kern.name} kernel, degree {degree}, {solver}, float64")

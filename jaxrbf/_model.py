@@ -125,7 +125,10 @@ class AbstractModel(eqx.Module):
 
     def _dispatch(self, fn, flat: Array) -> Array:
         """`fn(self, flat)`: inside the caller's trace when anything is traced, else split over
-        the devices (`jaxrbf._sharding`)."""
+        the devices (`jaxrbf._sharding`). No points give an empty result of the right shape (a
+        partition model's local fits would otherwise reshape an empty batch)."""
+        if flat.shape[0] == 0:
+            return self._dispatch(fn, jnp.zeros((1, self.dim), flat.dtype))[:0]
         if _traced(self, flat):
             return fn(self, flat)
         from ._sharding import split_over_devices

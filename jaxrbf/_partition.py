@@ -45,7 +45,7 @@ from jax import lax
 from jaxtyping import Array, Float, Int
 from scipy.spatial import cKDTree
 
-from ._constraints import log, progress_bar
+from ._constraints import VOLUME_SMOOTHING, log, progress_bar
 from ._errors import InputError, SolveError
 from ._model import AbstractModel, _traced, kernel_block, poly_basis
 from ._schwarz import _kd_leaves
@@ -375,14 +375,15 @@ def _flat(cov: Array) -> Array:
 
 
 @eqx.filter_jit
-def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
+def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing, row_scale=None):
     """Local saddle-system solves for a batch of padded patches (vmap). Returns weights, coeffs
-    and each patch's relative residual on its own constraints."""
+    and each patch's relative residual on its own constraints. `row_scale` (the shape of `hs`,
+    default all 1) scales `smoothing` row by row: the term added to each row's diagonal."""
 
-    def one(x, h, keep, o, r):
+    def one(x, h, keep, o, r, rs):
         m = x.shape[0]
         both = keep[:, None] & keep[None, :]
-        a = kernel_block(kernel, x, x) + smoothing * jnp.eye(m, dtype=x.dtype)
+        a = kernel_block(kernel, x, x) + jnp.diag(smoothing * rs).astype(x.dtype)
         # Equilibrate: kernel entries of a small patch are tiny next to the polynomial's.
         s = 1.0 / jnp.maximum(jnp.max(jnp.where(both, jnp.abs(a), 0.0)), 1e-300)
         a_s = jnp.where(both, a * s, 0.0) + jnp.diag(~keep).astype(x.dtype)
@@ -412,20 +413,32 @@ def _fit_batch(kernel, xs, hs, mask, origin, radius, degree: int, smoothing):
         rel = err / jnp.maximum(jnp.max(jnp.abs(hk)), 1e-300)
         return wts, cf, rel
 
-    return jax.vmap(one)(xs, hs, mask, origin, radius)
+    rows = jnp.ones_like(hs) if row_scale is None else row_scale
+    return jax.vmap(one)(xs, hs, mask, origin, radius, rows)
 
 
 def fit_patches(
-    kernel, xn, h, degree, smoothing, patches: Patches, *, verbose=False, desc="patches"
+    kernel,
+    xn,
+    h,
+    degree,
+    smoothing,
+    patches: Patches,
+    *,
+    row_scale=None,
+    verbose=False,
+    desc="patches",
 ):
     """Solve every patch's local system, in fixed-size batches. Returns (weights, coeffs,
-    worst local residual), the arrays with the dummy row appended."""
+    worst local residual), the arrays with the dummy row appended. `row_scale` (one per
+    constraint, default all 1) scales `smoothing` constraint by constraint."""
     from ._sharding import pad_to_devices, split_over_devices
 
     n_p, m = patches.members.shape
     dim = xn.shape[1]
     xpad = np.concatenate([xn, np.zeros((1, dim))])
     hpad = np.concatenate([h, np.zeros(1)])
+    spad = np.concatenate([np.ones(len(h)) if row_scale is None else row_scale, np.ones(1)])
     k = poly_basis(jnp.zeros((1, dim)), degree).shape[1]
     weights = np.zeros((n_p + 1, m))
     coeffs = np.zeros((n_p + 1, k))
@@ -443,8 +456,9 @@ def fit_patches(
             mem = patches.members[sel, :width]
             mask = patches.mask[sel, :width] & real[:, None]
             args = (xpad[mem], hpad[mem], mask, patches.origin[sel], patches.radius[sel])
+            args += (spad[mem],)
             w, c, rel = split_over_devices(
-                lambda *a: _fit_batch(kernel, *a, degree, smoothing), *args
+                lambda *a: _fit_batch(kernel, *a[:5], degree, smoothing, a[5]), *args
             )
             w, c, rel = np.asarray(w), np.asarray(c), np.asarray(rel)
             stop = min(start + batch, n_p)
@@ -567,6 +581,7 @@ def fit_partition(
     lead = n
     if len(take):
         xw, h = np.concatenate([xw, volume[0][take]]), np.concatenate([h, volume[1][take]])
+    probe = np.arange(len(xw)) >= n  # this level's volume constraints
     xn = (xw - shift) / scale
     alpha = ALPHA_SMOOTHED if smoothing else ALPHA
     patches = make_patches(xn, leaf=leaf, alpha=alpha, lead=lead)
@@ -578,7 +593,7 @@ def fit_partition(
         order = np.concatenate(
             [np.arange(lead), lead + np.flatnonzero(uncovered), lead + np.flatnonzero(~uncovered)]
         )
-        xw, h, xn = xw[order], h[order], xn[order]
+        xw, h, xn, probe = xw[order], h[order], xn[order], probe[order]
         lead += len(left)
         patches = make_patches(
             xn, leaf=leaf, alpha=alpha, lead=lead, apart=len(left), apart_leaf=ORPHAN_LEAF
@@ -610,6 +625,7 @@ def fit_partition(
         degree,
         smoothing / scale**kernel.homogeneity,
         patches,
+        row_scale=np.where(probe, VOLUME_SMOOTHING, 1.0),  # volume constraints held
         verbose=verbose,
         desc=f"level {level} patches",
     )

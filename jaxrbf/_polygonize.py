@@ -820,14 +820,31 @@ def polygonize(
     return Mesh(verts, faces)
 
 
+def _components(verts: np.ndarray, faces: np.ndarray) -> tuple[int, np.ndarray]:
+    """The connected components of a mesh: their count and each vertex's label."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(verts)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)
+
+
+def _keep_components(verts: np.ndarray, faces: np.ndarray, label: np.ndarray, good: np.ndarray):
+    """The mesh of the components marked `good` (by label): vertices re-indexed, faces."""
+    keep_face = good[label[faces[:, 0]]]
+    used = np.zeros(len(verts), bool)
+    used[faces[keep_face].ravel()] = True
+    new_index = np.cumsum(used) - 1
+    return verts[used], new_index[faces[keep_face]]
+
+
 def _prune(implicit, verts: np.ndarray, faces: np.ndarray, disable: bool):
     """Drop the connected components of the mesh most of whose vertices lie where the
     partition's finest level hands over to the coarse levels (`implicit.coverage` below the
     blend's `TAU`): a patch radius or more from every input sample, where only the coarse
     levels' extrapolation speaks. Returns the kept vertices (re-indexed) and faces."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     from ._partition import TAU
 
     if not hasattr(implicit, "coverage"):
@@ -837,28 +854,62 @@ def _prune(implicit, verts: np.ndarray, faces: np.ndarray, disable: bool):
         )
     if len(faces) == 0:
         return verts, faces
-    n = len(verts)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
-    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    n_comp, label = connected_components(graph, directed=False)
+    n_comp, label = _components(verts, faces)
     near = np.asarray(implicit.coverage(verts)) >= TAU
     share = np.bincount(label, near, minlength=n_comp) / np.bincount(label, minlength=n_comp)
     good = share >= 0.5
     if good.all():
         return verts, faces
-    keep_face = good[label[faces[:, 0]]]
-    used = np.zeros(n, bool)
-    used[faces[keep_face].ravel()] = True
-    new_index = np.cumsum(used) - 1
+    verts_kept, faces_kept = _keep_components(verts, faces, label, good)
     if not disable:
         from ._constraints import log
 
         log(
             f"dropped {int((~good).sum())} of {n_comp} mesh components "
-            f"({int((~keep_face).sum()):,} faces) lying mostly a patch radius or more from every "
-            "input sample (prune=False keeps them)"
+            f"({len(faces) - len(faces_kept):,} faces) lying mostly a patch radius or more from "
+            "every input sample (prune=False keeps them)"
         )
-    return verts[used], new_index[faces[keep_face]]
+    return verts_kept, faces_kept
+
+
+#: A mesh component with no input sample within this many of the samples' point spacings of
+#: any of its vertices accounts for no input (`drop_unsupported`).
+SUPPORT_SPACINGS = 2.0
+
+
+def drop_unsupported(mesh, samples: np.ndarray, spacing: float, verbose: bool = False):
+    """`mesh` without its connected components that lie wholly away from the `samples` (no
+    sample within `SUPPORT_SPACINGS` x `spacing` of any vertex): a surface with no input behind
+    it (the small closed bubbles a fit can leave between the samples and the volume constraints
+    that say outside there). The mesh is returned as it is when no component has a sample near
+    (the accounts check then says what is wrong)."""
+    from scipy.spatial import cKDTree
+
+    from .io import Mesh
+
+    verts, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if len(faces) == 0 or len(samples) == 0:
+        return mesh
+    n_comp, label = _components(verts, faces)
+    if n_comp == 1:
+        return mesh
+    d, _ = cKDTree(samples).query(
+        verts, distance_upper_bound=SUPPORT_SPACINGS * spacing, workers=-1
+    )
+    surface = np.bincount(label[faces[:, 0]], minlength=n_comp) > 0  # not a loose vertex
+    unsupported = surface & (np.bincount(label, np.isfinite(d), minlength=n_comp) == 0)
+    if not unsupported.any() or unsupported.sum() == surface.sum():
+        return mesh
+    verts_kept, faces_kept = _keep_components(verts, faces, label, ~unsupported)
+    if verbose:
+        from ._constraints import log
+
+        log(
+            f"dropped {int(unsupported.sum())} of {int(surface.sum())} mesh components "
+            f"({len(faces) - len(faces_kept):,} faces) with no input sample within "
+            f"{SUPPORT_SPACINGS:g} point spacings of them"
+        )
+    return Mesh(verts_kept, faces_kept)
 
 
 def contour(

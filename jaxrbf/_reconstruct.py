@@ -675,9 +675,10 @@ def mesh_fit(
     (`contour`) in 2-D, at `resolution` (default: `default_resolution(samples)`), checked
     against the samples before it is returned (`jaxrbf._accounts.check_output`): an output
     that loses part of its input, or that is mostly surface far from every sample, is a
-    `SolveError` that says what went wrong, never a result."""
+    `SolveError` that says what went wrong, never a result. Mesh components with no sample
+    near are dropped first (`drop_unsupported`)."""
     from ._accounts import check_curves, check_output
-    from ._polygonize import contour
+    from ._polygonize import contour, drop_unsupported
 
     if resolution is None:
         resolution = default_resolution(samples)
@@ -701,6 +702,7 @@ def mesh_fit(
         verbose=verbose,
         bounds=meshing_box(samples),
     )
+    mesh = drop_unsupported(mesh, samples, point_spacing(samples), verbose=verbose)
     if verbose:
         log(
             f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in "

@@ -149,14 +149,13 @@ class _PCG(lx.AbstractLinearSolver):
 
 
 def _local_inverses(kernel, xs: Array, mask: Array, degree: int, smoothing) -> Array:
-    """W_s for every subdomain: xs (s, m, d) padded centres, mask (s, m). Returns (s, m, m)."""
+    """W_s for every subdomain: xs (s, m, d) padded centres, mask (s, m), smoothing (s, m) (each
+    row's). Returns (s, m, m)."""
 
-    def one(x, keep):
+    def one(x, keep, sm):
         m = x.shape[0]
         both = keep[:, None] & keep[None, :]
-        a = jnp.where(both, kernel_matrix(kernel, x, smoothing), 0.0) + jnp.diag(~keep).astype(
-            x.dtype
-        )
+        a = jnp.where(both, kernel_matrix(kernel, x, sm), 0.0) + jnp.diag(~keep).astype(x.dtype)
         # The local polynomial on centred, rescaled coordinates: same span, better conditioned.
         w = keep.astype(x.dtype)[:, None]
         mid = jnp.sum(x * w, axis=0) / jnp.maximum(jnp.sum(w), 1.0)
@@ -167,18 +166,18 @@ def _local_inverses(kernel, xs: Array, mask: Array, degree: int, smoothing) -> A
         inv = jnp.linalg.inv(b)[:m, :m]
         return 0.5 * (inv + inv.T) * both
 
-    return jax.vmap(one)(xs, mask)
+    return jax.vmap(one)(xs, mask, smoothing)
 
 
 def schwarz_preconditioner(kernel, centres, degree, smoothing, decomposition, q1):
     """The two-level additive Schwarz M^-1 of the module docstring, as a function of v."""
     idx, mask, coarse = decomposition
-    w_loc = _local_inverses(kernel, centres[idx], mask, degree, smoothing)
+    rows = jnp.broadcast_to(smoothing, centres.shape[:1])  # a scalar, or one per row
+    w_loc = _local_inverses(kernel, centres[idx], mask, degree, rows[idx])
     has_coarse = coarse.shape[0] > 0
     if has_coarse:
-        w_c = _local_inverses(
-            kernel, centres[coarse][None], jnp.ones((1, coarse.shape[0]), bool), degree, smoothing
-        )[0]
+        whole = jnp.ones((1, coarse.shape[0]), bool)
+        w_c = _local_inverses(kernel, centres[coarse][None], whole, degree, rows[coarse][None])[0]
 
     def apply(v):
         ys = jnp.einsum("smk,sk->sm", w_loc, v[idx] * mask)
@@ -206,7 +205,8 @@ def solve_system(
     """Solve eq. 6 for the weights and polynomial coefficients.
 
     **Arguments:**
-    - `kernel`, `centres` (n, d) normalised, `values` (n,), `smoothing` (scalar >= 0).
+    - `kernel`, `centres` (n, d) normalised, `values` (n,), `smoothing` (>= 0: a scalar, or
+      (n,), one per row).
     - `degree`: -1, 0 or 1. `solver`: one of `SOLVERS`.
     - `rtol`, `max_steps`: for CG and GMRES (`max_steps` in iterations; default
       min(20 n, 5000)). CG stops on max|r| <= rtol max|b|; GMRES on lineax's criterion.

@@ -16,7 +16,7 @@ from .kernels import AbstractKernel
 
 
 def kernel_matrix(kernel: AbstractKernel, centres: Array, smoothing) -> Float[Array, "n n"]:
-    """A + s I, dense."""
+    """A + s I, dense (`smoothing` s a scalar, or one per row: A + diag(s))."""
     n = centres.shape[0]
     return kernel_block(kernel, centres, centres) + smoothing * jnp.eye(n, dtype=centres.dtype)
 

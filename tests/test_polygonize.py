@@ -81,3 +81,29 @@ def test_errors():
         jaxrbf.polygonize(lambda q: q[:, 0], resolution=8, bounds=((0,) * 3, (0,) * 3))
     with pytest.raises(InputError, match="at least 2 samples"):
         jaxrbf.polygonize(lambda q: q[:, 0], resolution=1, bounds=((0,) * 3, (1,) * 3))
+
+
+def test_components_with_no_sample_near_are_dropped():
+    """Of a mesh of three spheres, the one with no input sample on it goes (a surface no input
+    stands behind); the small one that holds a few samples stays."""
+    from jaxrbf._polygonize import drop_unsupported
+
+    def f(x):
+        d1 = jnp.linalg.norm(x, axis=-1) - 1.0
+        d2 = jnp.linalg.norm(x - jnp.array([2.0, 0.0, 0.0]), axis=-1) - 0.3
+        d3 = jnp.linalg.norm(x - jnp.array([0.0, 2.0, 0.0]), axis=-1) - 0.3
+        return jnp.minimum(jnp.minimum(d1, d2), d3)
+
+    mesh = jaxrbf.polygonize(f, resolution=64, bounds=([-1.5] * 3, [2.5] * 3))
+    big, _ = sphere(2000)
+    small, _ = sphere(12, 0.3, (2.0, 0.0, 0.0))
+    samples = np.concatenate([big, small])
+    spacing = 0.05
+    out = drop_unsupported(mesh, samples, spacing)
+    v = np.asarray(out.vertices)
+    assert len(out.faces) < len(mesh.faces)
+    assert np.all(np.linalg.norm(v - [0.0, 2.0, 0.0], axis=1) > 0.5)  # the bare sphere went
+    assert np.any(np.linalg.norm(v - [2.0, 0.0, 0.0], axis=1) < 0.5)  # the sampled one stayed
+    # nothing is supported: the mesh is left for the accounts check to refuse
+    far, _ = sphere(50, 1.0, (10.0, 10.0, 10.0))
+    assert len(drop_unsupported(mesh, far, spacing).faces) == len(mesh.faces)

@@ -877,12 +877,16 @@ def _prune(implicit, verts: np.ndarray, faces: np.ndarray, disable: bool):
 SUPPORT_SPACINGS = 2.0
 
 
-def drop_unsupported(mesh, samples: np.ndarray, spacing: float, verbose: bool = False):
+def drop_unsupported(
+    mesh, samples: np.ndarray, spacing: float, cell: float = 0.0, verbose: bool = False
+):
     """`mesh` without its connected components that lie wholly away from the `samples` (no
-    sample within `SUPPORT_SPACINGS` x `spacing` of any vertex): a surface with no input behind
-    it (the small closed bubbles a fit can leave between the samples and the volume constraints
-    that say outside there). The mesh is returned as it is when no component has a sample near
-    (the accounts check then says what is wrong)."""
+    sample within `SUPPORT_SPACINGS` x `spacing` of any vertex, nor within a diagonal of the
+    meshing grid's `cell`, which a surface through a sample may leave between it and its
+    nearest vertex): a surface with no input behind it (the small closed bubbles a fit can
+    leave between the samples and the volume constraints that say outside there). The mesh is
+    returned as it is when no component has a sample near (the accounts check then says what is
+    wrong)."""
     from scipy.spatial import cKDTree
 
     from .io import Mesh
@@ -893,9 +897,8 @@ def drop_unsupported(mesh, samples: np.ndarray, spacing: float, verbose: bool = 
     n_comp, label = _components(verts, faces)
     if n_comp == 1:
         return mesh
-    d, _ = cKDTree(samples).query(
-        verts, distance_upper_bound=SUPPORT_SPACINGS * spacing, workers=-1
-    )
+    reach = max(SUPPORT_SPACINGS * spacing, math.sqrt(3.0) * cell)
+    d, _ = cKDTree(samples).query(verts, distance_upper_bound=reach, workers=-1)
     surface = np.bincount(label[faces[:, 0]], minlength=n_comp) > 0  # not a loose vertex
     unsupported = surface & (np.bincount(label, np.isfinite(d), minlength=n_comp) == 0)
     if not unsupported.any() or unsupported.sum() == surface.sum():
@@ -907,7 +910,7 @@ def drop_unsupported(mesh, samples: np.ndarray, spacing: float, verbose: bool = 
         log(
             f"dropped {int(unsupported.sum())} of {int(surface.sum())} mesh components "
             f"({len(faces) - len(faces_kept):,} faces) with no input sample within "
-            f"{SUPPORT_SPACINGS:g} point spacings of them"
+            f"{reach / spacing:.2g} point spacings of them"
         )
     return Mesh(verts_kept, faces_kept)
 

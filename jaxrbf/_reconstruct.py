@@ -702,7 +702,9 @@ def mesh_fit(
         verbose=verbose,
         bounds=meshing_box(samples),
     )
-    mesh = drop_unsupported(mesh, samples, point_spacing(samples), verbose=verbose)
+    lo, hi = meshing_box(samples)
+    cell = float(np.max(hi - lo)) / max(int(np.max(resolution)) - 1, 1)
+    mesh = drop_unsupported(mesh, samples, point_spacing(samples), cell, verbose=verbose)
     if verbose:
         log(
             f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in "

@@ -104,6 +104,10 @@ def test_components_with_no_sample_near_are_dropped():
     assert len(out.faces) < len(mesh.faces)
     assert np.all(np.linalg.norm(v - [0.0, 2.0, 0.0], axis=1) > 0.5)  # the bare sphere went
     assert np.any(np.linalg.norm(v - [2.0, 0.0, 0.0], axis=1) < 0.5)  # the sampled one stayed
+    # a grid cell coarser than the samples' spacing widens the reach by its diagonal: with a
+    # cell of 0.5 (reach 0.87) the bare sphere, 0.7 from the big one's samples, stays
+    assert len(drop_unsupported(mesh, samples, spacing, cell=0.5).faces) == len(mesh.faces)
+    assert len(drop_unsupported(mesh, samples, spacing, cell=0.3).faces) < len(mesh.faces)
     # nothing is supported: the mesh is left for the accounts check to refuse
     far, _ = sphere(50, 1.0, (10.0, 10.0, 10.0))
     assert len(drop_unsupported(mesh, far, spacing).faces) == len(mesh.faces)

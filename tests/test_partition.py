@@ -301,17 +301,24 @@ def test_coarse_levels_rebuilt_with_their_own_offset(monkeypatch):
     assert np.all(np.sign(np.asarray(pu(far[keep]))) == np.sign(r[keep] - 1))
 
 
+def _sphere_and_probes(rng, n: int, steps: int, inner: float, outer: float):
+    """n random points on the unit sphere, and the nodes of a steps^3 lattice on [-1.8, 1.8]^3
+    inside radius `inner` or outside `outer` with their signed distances to it."""
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    axis = np.linspace(-1.8, 1.8, steps)
+    g = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    r = np.linalg.norm(g, axis=1)
+    probes = g[(r < inner) | (r > outer)]
+    return p, probes, np.linalg.norm(probes, axis=1) - 1.0
+
+
 def test_every_volume_constraint_lies_in_some_level_s_patches(monkeypatch):
     """Volume constraints that no level's surface patches hold (the core of a thick part, far
     from every sample) get patches of their own on the last level above the global base, so
     that the base's global fit, which holds only a few of them, never decides their sign."""
     rng = np.random.default_rng(3)
-    p = rng.normal(size=(4000, 3))
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-    g = np.stack(np.meshgrid(*[np.linspace(-1.8, 1.8, 19)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    r = np.linalg.norm(g, axis=1)
-    probes = g[(r < 0.6) | (r > 1.3)]
-    values = np.linalg.norm(probes, axis=1) - 1.0
+    p, probes, values = _sphere_and_probes(rng, 4000, 19, 0.6, 1.3)
     c = jaxrbf.Constraints.from_points(p, p, 0.004).with_volume(probes, values)
     monkeypatch.setattr(_partition, "COARSE_SURFACE_MIN", 100)
     monkeypatch.setattr(_partition, "BASE_SIZE", 1500)
@@ -472,13 +479,8 @@ def test_a_smoothed_fit_holds_its_volume_constraints(monkeypatch, method):
     horns, where only the probes say outside)."""
     rng = np.random.default_rng(5)
     n = 3000 if method == "partition" else 1200
-    p = rng.normal(size=(n, 3))
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    p, probes, values = _sphere_and_probes(rng, n, 13, 0.7, 1.2)
     noisy = p * (1 + 0.01 * rng.standard_normal((n, 1)))
-    g = np.stack(np.meshgrid(*[np.linspace(-1.8, 1.8, 13)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    r = np.linalg.norm(g, axis=1)
-    probes = g[(r < 0.7) | (r > 1.2)]
-    values = np.linalg.norm(probes, axis=1) - 1.0
     c = jaxrbf.Constraints.from_points(noisy, p, 0.02).with_volume(probes, values)
     monkeypatch.setattr(_partition, "BASE_SIZE", 1500)
     pu = jaxrbf.fit(c, method=method, kernel="linear", smoothing=0.1)

@@ -455,8 +455,7 @@ def fit_patches(
             width = min(m, -(-int(patches.mask[sel].sum(axis=1).max()) // 32) * 32)
             mem = patches.members[sel, :width]
             mask = patches.mask[sel, :width] & real[:, None]
-            args = (xpad[mem], hpad[mem], mask, patches.origin[sel], patches.radius[sel])
-            args += (spad[mem],)
+            args = (xpad[mem], hpad[mem], mask, patches.origin[sel], patches.radius[sel], spad[mem])
             w, c, rel = split_over_devices(
                 lambda *a: _fit_batch(kernel, *a[:5], degree, smoothing, a[5]), *args
             )

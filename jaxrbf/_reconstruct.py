@@ -694,15 +694,15 @@ def mesh_fit(
             log(f"{len(out)} curves in {time.perf_counter() - t0:.1f} s")
         _accounted(check_curves(out, samples), verbose)
         return out
+    lo, hi = meshing_box(samples)
     mesh = mesh_closed(
         model,
         resolution=resolution,
         project=project,
         progress=progress,
         verbose=verbose,
-        bounds=meshing_box(samples),
+        bounds=(lo, hi),
     )
-    lo, hi = meshing_box(samples)
     cell = float(np.max(hi - lo)) / max(int(np.max(resolution)) - 1, 1)
     mesh = drop_unsupported(mesh, samples, point_spacing(samples), cell, verbose=verbose)
     if verbose:

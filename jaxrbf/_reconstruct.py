@@ -311,6 +311,19 @@ def fit_surface(source, normals=None, **options) -> AbstractModel:
     return fit_surface_samples(source, normals, **options)[0]
 
 
+class Fitted(tuple):
+    """What `fit_surface_samples` returns: `(model, points, normals)`, and as `walls` the
+    buried samples and their normals (`((k, d), (k, d))`, k = 0 when none), which the fit left
+    out and `mesh_fit` keeps as thin cavities (`jaxrbf._cavities`)."""
+
+    walls: tuple[np.ndarray, np.ndarray]
+
+    def __new__(cls, model, points, normals, walls):
+        self = super().__new__(cls, (model, points, normals))
+        self.walls = walls
+        return self
+
+
 def fit_surface_samples(
     source,
     normals=None,
@@ -331,7 +344,7 @@ def fit_surface_samples(
     fill_holes="auto",
     volume="auto",
     verbose: bool = False,
-) -> tuple[AbstractModel, np.ndarray, np.ndarray]:
+) -> Fitted:
     """Constraints from `source` (see `constraints_from`), then `fit`: `(model, points,
     normals)`, the points and normals being the surface samples fitted (hole caps included,
     buried samples left out), which the output must account for.
@@ -381,7 +394,8 @@ def fit_surface_samples(
     winding number does, a smooth membrane, instead of where its coarse levels extrapolate.
     Samples with the inside on both of their sides (`jaxrbf._winding.buried_samples`: walls
     inside another piece) are left out of the fit and of the samples returned, unless the fit
-    approximates a noisy cloud.
+    approximates a noisy cloud; they come back as the result's `walls` (`Fitted`), which
+    `mesh_fit` keeps as thin cavities.
     With them, normals that all point into the solid (the samples' winding number reads about
     -1/2 at them instead of +1/2: `jaxrbf._winding.points_inward`) are turned out first, with a
     line on stderr, and off-surface points that the winding number clearly puts on the other
@@ -466,6 +480,7 @@ def fit_surface_samples(
                 )
             frac, rebuild = near, True
     fitted_p, fitted_n, vc = p, n, None
+    walls = (np.zeros((0, p.shape[1])), np.zeros((0, p.shape[1])))
     if volume:
         from ._winding import volume_constraints
 
@@ -488,7 +503,8 @@ def fit_surface_samples(
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
         if vc.buried.any():
-            # walls inside the solid: neither fitted nor owed a surface by the output's check
+            # walls inside the solid: not fitted (the output keeps them as thin cavities)
+            walls = (p[vc.buried], n[vc.buried])
             p, n, rebuild = p[~vc.buried], n[~vc.buried], True
         fitted_p, fitted_n = p, n
         if len(vc.closing):
@@ -558,7 +574,7 @@ def fit_surface_samples(
         background=bg,
         verbose=verbose,
     )
-    return model, p, n
+    return Fitted(model, p, n, walls)
 
 
 #: The default meshing grid follows the samples' density: `RESOLUTION_AT` samples along the
@@ -656,9 +672,16 @@ def reconstruct(
 
     **Returns:** a `jaxrbf.io.Mesh` for 3-D input; for a 2-D polyline, a list of (k, 2) curves.
     """
-    model, samples, _ = fit_surface_samples(source, normals, verbose=verbose, **options)
+    fitted = fit_surface_samples(source, normals, verbose=verbose, **options)
+    model, samples, _ = fitted
     return mesh_fit(
-        model, samples, resolution=resolution, project=project, progress=progress, verbose=verbose
+        model,
+        samples,
+        resolution=resolution,
+        project=project,
+        progress=progress,
+        verbose=verbose,
+        walls=fitted.walls,
     )
 
 
@@ -670,13 +693,16 @@ def mesh_fit(
     project: bool = False,
     progress: bool | None = None,
     verbose: bool = False,
+    walls=None,
 ):
     """The surface of a fit of the surface `samples`: a mesh (`mesh_closed`) in 3-D, curves
     (`contour`) in 2-D, at `resolution` (default: `default_resolution(samples)`), checked
     against the samples before it is returned (`jaxrbf._accounts.check_output`): an output
     that loses part of its input, or that is mostly surface far from every sample, is a
     `SolveError` that says what went wrong, never a result. Mesh components with no sample
-    near are dropped first (`drop_unsupported`)."""
+    near are dropped first (`drop_unsupported`). `walls`: the buried samples and their normals
+    that the fit left out (`Fitted.walls`), kept in a mesh as thin cavities
+    (`jaxrbf._cavities`) and checked with the samples."""
     from ._accounts import check_curves, check_output
     from ._polygonize import contour, drop_unsupported
 
@@ -704,7 +730,13 @@ def mesh_fit(
         bounds=(lo, hi),
     )
     cell = float(np.max(hi - lo)) / max(int(np.max(resolution)) - 1, 1)
-    mesh = drop_unsupported(mesh, samples, point_spacing(samples), cell, verbose=verbose)
+    spacing = point_spacing(samples)
+    mesh = drop_unsupported(mesh, samples, spacing, cell, verbose=verbose)
+    if walls is not None and len(walls[0]):
+        from ._cavities import with_cavities
+
+        mesh = with_cavities(mesh, model, *walls, spacing, cell, verbose=verbose)
+        samples = np.concatenate([samples, walls[0]])
     if verbose:
         log(
             f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in "

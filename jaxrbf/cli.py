@@ -456,10 +456,11 @@ def _normals_arg(source, args):
     return args.normals
 
 
-def _write_surface(model, args, samples=None):
+def _write_surface(model, args, samples=None, walls=None):
     """Mesh (or contour) `model` to `args.output`; returns the mesh (3-D) or None. With the
     fit's surface `samples`, the grid follows their spacing and the output is checked against
-    them before it is written (`jaxrbf._reconstruct.mesh_fit`)."""
+    them before it is written (`jaxrbf._reconstruct.mesh_fit`, which keeps the fit's `walls` as
+    thin cavities)."""
     from . import io
     from ._constraints import log
     from ._polygonize import contour
@@ -475,6 +476,7 @@ def _write_surface(model, args, samples=None):
             project=args.project,
             progress=progress,
             verbose=not args.quiet,
+            walls=walls,
         )
         if model.dim == 2:
             io.write_polylines(args.output, out)
@@ -595,12 +597,14 @@ def _run(args) -> int:
                     "--smoothing 1e-6` (a starting lambda > 0)"
                 )
             model, _ = _tuned(source, args)
-            samples = None
+            samples = walls = None
         else:
-            model, samples, _ = fit_surface_samples(
+            fitted = fit_surface_samples(
                 source[0], _normals_arg(source, args), **_fit_kwargs(args)
             )
-        mesh = _write_surface(model, args, samples)
+            model, samples, _ = fitted
+            walls = fitted.walls
+        mesh = _write_surface(model, args, samples, walls)
         if mesh is not None and not args.quiet:
             _log_topology(source, mesh)
         if args.preview and model.dim == 3:

@@ -599,9 +599,7 @@ def _run(args) -> int:
             model, _ = _tuned(source, args)
             samples = walls = None
         else:
-            fitted = fit_surface_samples(
-                source[0], _normals_arg(source, args), **_fit_kwargs(args)
-            )
+            fitted = fit_surface_samples(source[0], _normals_arg(source, args), **_fit_kwargs(args))
             model, samples, _ = fitted
             walls = fitted.walls
         mesh = _write_surface(model, args, samples, walls)

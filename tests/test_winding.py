@@ -586,3 +586,37 @@ def test_a_cloud_whose_normals_all_point_inward_gives_the_same_surface(capsys):
     assert float(model(np.zeros((1, 3)))[0]) < 0
     r = np.linalg.norm(mesh_fit(model, samples, resolution=48).vertices, axis=1)
     assert np.abs(r - 1).max() < 0.01
+
+
+@pytest.mark.slow
+def test_the_walls_left_out_of_the_fit_come_back_as_thin_cavities():
+    # the same union: the walls inside it are input too (an eyeball's rim sunk in its socket, a
+    # spout inside its body), kept as thin closed cavities inside the solid, the outer surface
+    # as it was
+    from scipy.spatial import cKDTree as Tree
+
+    from jaxrbf import is_watertight
+    from jaxrbf._cavities import HALF_WIDTH
+
+    p, n = _two_spheres(3000)
+    fitted = fit_surface_samples(p, n)
+    model, samples, _ = fitted
+    walls, wall_normals = fitted.walls
+    assert len(walls) + len(samples) == len(p) and len(wall_normals) == len(walls)
+    plain = mesh_fit(model, samples, resolution=64)
+    mesh = mesh_fit(model, samples, resolution=64, walls=fitted.walls)
+    assert is_watertight(mesh)
+    k = len(plain.vertices)
+    assert np.array_equal(mesh.vertices[:k], plain.vertices)
+    cavity = mesh.vertices[k:]
+    assert len(cavity) > 100
+    spacing = np.median(Tree(p).query(p, k=2)[0][:, 1])
+    cell = 2.6 * 1.1 / 63  # the meshing box's longest side over the grid's cells
+    reach = (HALF_WIDTH + 1) * max(spacing, cell)
+    # every wall sample lies next to the output; without the cavities they lay up to the depth
+    # of the caps (0.4) from it
+    assert Tree(mesh.vertices).query(walls)[0].max() < reach
+    assert Tree(plain.vertices).query(walls)[0].max() > 0.2
+    # the cavities lie inside the solid, clear of its outer surface
+    assert np.all(np.asarray(model(cavity)) < 0)
+    assert Tree(plain.vertices).query(cavity)[0].min() > HALF_WIDTH * max(spacing, cell)

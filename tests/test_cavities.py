@@ -5,7 +5,15 @@ import numpy as np
 import pytest
 
 from jaxrbf import is_watertight
-from jaxrbf._cavities import DEPTH, HALF_WIDTH, MIN_SAMPLES, REACH, wall_cavities, with_cavities
+from jaxrbf._cavities import (
+    DEPTH,
+    GRID,
+    HALF_WIDTH,
+    MIN_SAMPLES,
+    REACH,
+    wall_cavities,
+    with_cavities,
+)
 from jaxrbf.io import Mesh
 
 
@@ -36,15 +44,16 @@ def test_a_wall_inside_the_solid_becomes_a_thin_closed_cavity_round_it():
     assert count == 1 and len(f) > 100
     assert is_watertight(Mesh(v, f))
     assert _signed_volume(v, f) < 0  # its faces face into the cavity, out of the material
-    width = HALF_WIDTH * spacing
+    h = GRID * min(spacing, cell)  # the cavities' own grid
+    width = HALF_WIDTH * h
     # thin: both faces within a cell of the half-width off the wall's plane
-    assert np.all(np.abs(v[:, 2]) < width + cell)
-    assert np.median(np.abs(v[:, 2])) == pytest.approx(width, abs=0.5 * cell)
+    assert np.all(np.abs(v[:, 2]) < width + h)
+    assert np.median(np.abs(v[:, 2])) == pytest.approx(width, abs=0.5 * h)
     # the wall's every sample lies next to the cavity, which reaches just past the wall's rim
     from scipy.spatial import cKDTree
 
-    assert cKDTree(v).query(p)[0].max() < width + cell
-    assert np.hypot(v[:, 0], v[:, 1]).max() < 0.4 + REACH * width + cell
+    assert cKDTree(v).query(p)[0].max() < width + h
+    assert np.hypot(v[:, 0], v[:, 1]).max() < 0.4 + REACH * spacing + h
 
 
 def test_a_cavity_stops_short_of_the_outer_surface_and_small_walls_make_none():
@@ -53,7 +62,7 @@ def test_a_cavity_stops_short_of_the_outer_surface_and_small_walls_make_none():
     v, f, count = wall_cavities(_ball, p, n, spacing, cell)
     assert count == 1 and is_watertight(Mesh(v, f))
     # no slot cut into the outer surface: the cavity keeps about its half-width inside it
-    assert np.linalg.norm(v, axis=1).max() < 1.0 - (DEPTH - 0.5) * HALF_WIDTH * spacing
+    assert np.linalg.norm(v, axis=1).max() < 1.0 - (DEPTH - 0.5) * HALF_WIDTH * GRID * spacing
     few, fn = p[: MIN_SAMPLES - 1], n[: MIN_SAMPLES - 1]
     assert wall_cavities(_ball, few, fn, spacing, cell)[2] == 0
     # a "wall" on the outer surface (samples wrongly called buried) leaves no dent

@@ -596,7 +596,7 @@ def test_the_walls_left_out_of_the_fit_come_back_as_thin_cavities():
     from scipy.spatial import cKDTree as Tree
 
     from jaxrbf import is_watertight
-    from jaxrbf._cavities import HALF_WIDTH
+    from jaxrbf._cavities import GRID, HALF_WIDTH
 
     p, n = _two_spheres(3000)
     fitted = fit_surface_samples(p, n)
@@ -619,4 +619,4 @@ def test_the_walls_left_out_of_the_fit_come_back_as_thin_cavities():
     assert Tree(plain.vertices).query(walls)[0].max() > 0.2
     # the cavities lie inside the solid, clear of its outer surface
     assert np.all(np.asarray(model(cavity)) < 0)
-    assert Tree(plain.vertices).query(cavity)[0].min() > HALF_WIDTH * max(spacing, cell)
+    assert Tree(plain.vertices).query(cavity)[0].min() > HALF_WIDTH * GRID * min(spacing, cell)

@@ -44,6 +44,9 @@ HALF_WIDTH = 1.25
 #: pieces, whose rims cost normal consistency (suzanne 100k: 0.9731, teapot 100k 0.9829,
 #: against Poisson's 0.9742 and 0.9848; at 2: 0.9777 and 0.9868).
 REACH = 2.0
+#: Where a slab ends at the wall's edge: where the mean of the nearest wall samples lies more
+#: than EDGE point spacings sideways from the point (inside the wall they surround it).
+EDGE = 2.0
 #: How deep inside the fit's surface a cavity must lie, in half-widths (f < -DEPTH x width):
 #: clear of the outer surface by its own thickness, so that a few samples of the outer surface
 #: called buried (whose mean plane lies a little inside a convex surface) leave no shell
@@ -94,12 +97,13 @@ def _evaluate(model, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _slab_field(model, p, n, width: float, reach: float, h: float, lo, shape):
+def _slab_field(model, p, n, width: float, spacing: float, h: float, lo, shape):
     """The field whose negative region is the cavity round one wall (samples `p`, normals `n`)
     on the grid of spacing `h` from `lo` with `shape` cells, border cells positive."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(p)
+    reach = REACH * spacing
     k = min(NEIGHBOURS, len(p))
     field = np.full(shape, h)
     flat = field.reshape(-1)
@@ -122,8 +126,13 @@ def _slab_field(model, p, n, width: float, reach: float, h: float, lo, shape):
         nn = nn * np.sign(np.einsum("ijk,ik->ij", nn, nn[:, 0]))[..., None]
         nn = nn.sum(axis=1)
         nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-300)
-        slab = np.abs(np.einsum("ij,ij->i", q - p[idx].mean(axis=1), nn)) - width
-        value = np.maximum(d[near] - reach, slab)
+        off = q - p[idx].mean(axis=1)
+        along = np.einsum("ij,ij->i", off, nn)
+        slab = np.abs(along) - width
+        # past the wall's edge its nearest samples all lie on one side: their mean is off
+        # sideways by more than within the wall, where they surround the point
+        side = np.linalg.norm(off - along[:, None] * nn, axis=1) - EDGE * spacing
+        value = np.maximum(np.maximum(d[near] - reach, slab), side)
         flat[i * slice_size + near] = value
         inside = value < h  # only there can the fit change the sign
         pending.append(i * slice_size + near[inside])
@@ -165,7 +174,7 @@ def wall_cavities(model, walls, normals, spacing: float, cell: float):
         lo = wp.min(axis=0) - reach - 2 * h
         hi = wp.max(axis=0) + reach + 2 * h
         shape = tuple(int(s) for s in np.ceil((hi - lo) / h).astype(int) + 1)
-        field = _slab_field(model, wp, wn, width, reach, h, lo, shape)
+        field = _slab_field(model, wp, wn, width, spacing, h, lo, shape)
         if not field.min() < 0:
             continue
         v, f, _, _ = marching_cubes(field, 0.0, spacing=(h, h, h), allow_degenerate=False)
@@ -192,8 +201,8 @@ def with_cavities(mesh, model, walls, normals, spacing: float, cell: float, verb
         from ._constraints import log
 
         log(
-            f"{len(walls):,} buried samples (walls inside the solid): {count} thin cavities "
-            f"of {len(f):,} faces keep them in the output"
+            f"{len(walls):,} buried samples (walls inside the solid): kept in the output as "
+            f"{count} thin {'cavity' if count == 1 else 'cavities'} of {len(f):,} faces"
             if count
             else f"{len(walls):,} buried samples (walls inside the solid): no cavity (too few or "
             "too near the outer surface)"

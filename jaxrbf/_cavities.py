@@ -10,15 +10,16 @@ surface 1.5% of the diagonal from the output; Chamfer-L1 0.125% against Poisson'
 walls as slivers of its indicator.
 
 `wall_cavities` meshes each wall as the boundary of a thin slab of empty space around it, inside
-the solid, meshed on a grid of its own (`GRID`, finer than the meshing grid): the points within
-`HALF_WIDTH` cells of that grid from the wall's local plane (the mean of its `NEIGHBOURS` nearest wall samples and of their
-normals, so that both faces of the slab are as smooth as the wall; a union of balls round the
-samples, tried first, left both faces dimpled at the samples' spacing: normal consistency 0.966
-against 0.975 on that suzanne), no farther than `REACH` point spacings from a wall sample, and
-where the fit reads at least `DEPTH` half-widths inside, so that a wall meets the outer
-surface without cutting a slot in it and a sample wrongly called buried on the outer surface
-leaves no dent. Each cavity is closed, its faces turned into the cavity, so the output stays
-watertight: a solid with thin voids, every input sample on or next to its surface.
+the solid, on a grid of its own (`GRID`, finer than the meshing grid): the points within
+`HALF_WIDTH` cells of that grid from the wall's local plane (the mean of its `NEIGHBOURS`
+nearest wall samples and of their normals, so that both faces of the slab are as smooth as the
+wall; a union of balls round the samples, tried first, left both faces dimpled at the samples'
+spacing: normal consistency 0.966 against 0.975 on that suzanne), no farther than `REACH` point
+spacings from a wall sample nor past the wall's edge (`EDGE`), and where the fit reads at least
+`DEPTH` half-widths inside, so that a wall meets the outer surface without cutting a slot in it
+and a sample wrongly called buried on the outer surface leaves no dent. Each cavity is closed,
+its faces turned into the cavity, so the output stays watertight: a solid with thin voids,
+every input sample on or next to its surface.
 
 Precision: the slab's fields are float64 on the host (k-d tree queries and plane distances); the
 fit is read through the model (its own precision), in batches of a fixed size (one compilation).

@@ -185,6 +185,10 @@ INPUTS = (
     Input("cow-10k", "mesh", "cow.obj", 10_000),
     Input("fandisk-10k", "mesh", "fandisk.obj", 10_000),
     Input("bunny-1k", "mesh", "stanford-bunny.obj", 1_000),
+    # pieces that pierce each other, sampled densely: the walls inside the solid (eyeballs sunk
+    # in their sockets, a spout inside its body) are a few percent of the true surface
+    Input("suzanne-100k", "mesh", "suzanne.obj", 100_000),
+    Input("teapot-100k", "mesh", "teapot.obj", 100_000),
     Input("scan-bunny", "scan", "stanford-bunny.obj"),
     Input("scan-cow", "scan", "cow.obj"),
     Input("scan-fandisk", "scan", "fandisk.obj"),

@@ -59,6 +59,9 @@ NEIGHBOURS = 8
 #: crease of the outer surface (suzanne: clusters of 1-20 samples in its notches), where a
 #: cavity would be a bubble a spacing across.
 MIN_SAMPLES = 30
+#: Pieces of a cavity with less area than CRUMB x MIN_SAMPLES squared point spacings are
+#: dropped (`_without_crumbs`).
+CRUMB = 1.0
 #: Wall samples closer than LINK point spacings belong to one wall (one grid each). At 2 the
 #: random samples of a narrow wall fell apart into groups below `MIN_SAMPLES` (the suzanne's
 #: eyeball rims made no cavity).
@@ -147,6 +150,21 @@ def _slab_field(model, p, n, width: float, spacing: float, h: float, lo, shape):
     return field
 
 
+def _without_crumbs(v: np.ndarray, f: np.ndarray, spacing: float):
+    """The mesh `(v, f)` without its pieces of less area than `CRUMB` x `MIN_SAMPLES` squared
+    point spacings: bits a slab shed where its wall curves or thins, smaller than the cavity of
+    a wall of `MIN_SAMPLES` samples (which has about twice their area, both faces)."""
+    from ._polygonize import _components, _keep_components
+
+    k, label = _components(v, f)
+    if k == 1:
+        return v, f
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    piece = np.bincount(label[f[:, 0]], weights=area, minlength=k)
+    return _keep_components(v, f, label, piece >= CRUMB * MIN_SAMPLES * spacing**2)
+
+
 def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
@@ -180,6 +198,9 @@ def wall_cavities(model, walls, normals, spacing: float, cell: float):
             continue
         v, f, _, _ = marching_cubes(field, 0.0, spacing=(h, h, h), allow_degenerate=False)
         v = v + lo
+        v, f = _without_crumbs(v, f, spacing)
+        if len(f) == 0:
+            continue
         if _signed_volume(v, f) > 0:  # a cavity's faces face into it: its volume is negative
             f = f[:, ::-1]
         verts.append(v)

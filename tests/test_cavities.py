@@ -71,3 +71,40 @@ def test_a_cavity_stops_short_of_the_outer_surface_and_small_walls_make_none():
     assert wall_cavities(_ball, s, s, 0.05, 0.03)[2] == 0
     mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]))
     assert with_cavities(mesh, _ball, s, s, 0.05, 0.03) is mesh
+
+
+def test_crumbs_a_slab_sheds_are_dropped():
+    # two closed pieces: a slab-sized box kept, a crumb far smaller than a wall of MIN_SAMPLES
+    # samples dropped
+    from jaxrbf._cavities import CRUMB, _without_crumbs
+
+    def box(lo, hi):
+        v = np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        )
+        f = np.array(
+            [
+                [0, 1, 3],
+                [0, 3, 2],
+                [4, 6, 7],
+                [4, 7, 5],
+                [0, 4, 5],
+                [0, 5, 1],
+                [2, 3, 7],
+                [2, 7, 6],
+                [0, 2, 6],
+                [0, 6, 4],
+                [1, 5, 7],
+                [1, 7, 3],
+            ]
+        )
+        return v, f
+
+    spacing = 0.01
+    side = np.sqrt(CRUMB * MIN_SAMPLES) * spacing  # each face of the slab has the crumb area
+    v1, f1 = box([0, 0, 0], [side, side, 0.1 * side])
+    v2, f2 = box([1, 1, 1], [1 + spacing, 1 + spacing, 1 + spacing])
+    v, f = np.concatenate([v1, v2]), np.concatenate([f1, f2 + len(v1)])
+    kept_v, kept_f = _without_crumbs(v, f, spacing)
+    assert len(kept_f) == 12 and np.allclose(kept_v, v1)
+    assert len(_without_crumbs(v1, f1, spacing)[1]) == 12  # one piece: kept as it is

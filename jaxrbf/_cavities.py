@@ -75,14 +75,9 @@ BATCH = 16384
 
 def _walls(points: np.ndarray, link: float) -> list[np.ndarray]:
     """Index arrays of the groups of `points` joined by links shorter than `link`."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
+    from ._prepare import linked_groups
 
-    n = len(points)
-    pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    k, label = connected_components(graph, directed=False)
+    k, label = linked_groups(points, link)
     order = np.argsort(label, kind="stable")
     return np.split(order, np.cumsum(np.bincount(label, minlength=k))[:-1])
 

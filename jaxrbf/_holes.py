@@ -145,16 +145,12 @@ def _boundary(points, normals, k: int, gap: float, tree=None):
 
 def _rims(p: np.ndarray, boundary: np.ndarray, spacing: float) -> list[np.ndarray]:
     """Groups of linked boundary points (indices into `p`), each of at least `MIN_LOOP`."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
+    from ._prepare import linked_groups
 
     b = np.flatnonzero(boundary)
     if len(b) < MIN_LOOP:
         return []
-    pairs = cKDTree(p[b]).query_pairs(LINK_SPACINGS * spacing, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(b), len(b)))
-    _, label = connected_components(g, directed=False)
+    _, label = linked_groups(p[b], LINK_SPACINGS * spacing)
     sizes = np.bincount(label)
     return [b[label == lab] for lab in np.flatnonzero(sizes >= MIN_LOOP)]
 

@@ -45,6 +45,19 @@ def duplicate_pairs(points: np.ndarray, tol: float) -> np.ndarray:
     return np.sort(pairs, axis=1) if len(pairs) else pairs.reshape(0, 2)
 
 
+def linked_groups(points: np.ndarray, link: float) -> tuple[int, np.ndarray]:
+    """The groups of `points` joined by chains of links shorter than `link`: their count and each
+    point's group label (scipy's connected components of the k-d tree's pairs)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = len(points)
+    pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)
+
+
 def find_duplicates(points: np.ndarray, tol: float, pairs: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask of points that lie within `tol` of an earlier point (to drop)."""
     if pairs is None:

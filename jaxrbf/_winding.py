@@ -817,17 +817,14 @@ def reclosed(points, normals, areas, closing, spacing: float):
 
     **Returns:** `(samples, normals, held)`, `held` marking the samples of re-closed holes (all
     False, and `closing` as given, with fewer than two holes)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from ._prepare import linked_groups
 
     c, cn = closing
     h = CLOSE_CELL * spacing
     none = (c, cn, np.zeros(len(c), dtype=bool))
     if len(c) < 2:
         return none
-    pairs = cKDTree(c).query_pairs(CLOSE_LINK * h, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(c),) * 2)
-    count, label = connected_components(graph, directed=False)
+    count, label = linked_groups(c, CLOSE_LINK * h)
     lo, hi = _probe_box(points)
     edge = np.any((c < lo + CLOSE_LINK * h) | (c > hi - CLOSE_LINK * h), axis=1)
     hole = np.bincount(label[edge], minlength=count) == 0

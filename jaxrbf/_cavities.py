@@ -160,16 +160,11 @@ def _without_crumbs(v: np.ndarray, f: np.ndarray, spacing: float):
     return _keep_components(v, f, label, piece >= CRUMB * MIN_SAMPLES * spacing**2)
 
 
-def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
-
-
 def wall_cavities(model, walls, normals, spacing: float, cell: float):
     """Thin closed cavities round the `walls` (buried samples, (k, 3), with their `normals`)
     inside the solid of `model` (see the module docstring), as `(vertices, faces, count)`: the
     cavities' faces turned into them, and how many cavities were meshed."""
-    from skimage.measure import marching_cubes
+    from ._polygonize import marched
 
     p = np.asarray(walls, dtype=float).reshape(-1, 3)
     n = np.asarray(normals, dtype=float).reshape(-1, 3)
@@ -191,13 +186,11 @@ def wall_cavities(model, walls, normals, spacing: float, cell: float):
         field = _slab_field(model, wp, wn, width, spacing, h, lo, shape)
         if not field.min() < 0:
             continue
-        v, f, _, _ = marching_cubes(field, 0.0, spacing=(h, h, h), allow_degenerate=False)
-        v = v + lo
-        v, f = _without_crumbs(v, f, spacing)
+        v, f = marched(field, 0.0, h, lo)
+        # marched turns the faces up the field's gradient, out of the cavity: a cavity's face into it
+        v, f = _without_crumbs(v, f[:, ::-1], spacing)
         if len(f) == 0:
             continue
-        if _signed_volume(v, f) > 0:  # a cavity's faces face into it: its volume is negative
-            f = f[:, ::-1]
         verts.append(v)
         faces.append(f + offset)
         offset += len(v)

@@ -711,6 +711,25 @@ def _polygonize_band(implicit, lo, spacing, shape, level, sizes, band_width, dis
     return world + lo, faces.astype(np.int64), orient
 
 
+def marched(vol: np.ndarray, level: float, spacing, lo) -> tuple[np.ndarray, np.ndarray]:
+    """Marching cubes of the sampled grid `vol` (spacing `spacing` per axis, first sample at
+    `lo`) at `level`: vertices in world coordinates, and faces whose normals point up the
+    gradient, out of the region below `level`."""
+    from skimage.measure import marching_cubes
+
+    verts, faces, normals, _ = marching_cubes(
+        vol, level, spacing=tuple(np.broadcast_to(spacing, 3)), allow_degenerate=False
+    )
+    verts = verts + lo
+    faces = faces.astype(np.int64)
+    # marching_cubes' normals point down the gradient ('descent'); ours should point up it.
+    tri = verts[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    if np.sum(fn * normals[faces].sum(axis=1)) > 0:
+        faces = faces[:, ::-1].copy()
+    return verts, faces
+
+
 def polygonize(
     implicit: Callable,
     resolution: int | tuple[int, int, int] = 128,
@@ -763,8 +782,6 @@ def polygonize(
     **Returns:** a `jaxrbf.io.Mesh` (vertices in world coordinates, faces oriented outward: their
     normals point to increasing f).
     """
-    from skimage.measure import marching_cubes
-
     from .io import Mesh
 
     _check_band_args(coarsening, refine, band_width)
@@ -799,16 +816,7 @@ def polygonize(
                 f"f never crosses level {level} inside the bounds (values from {vol.min():.3g} to "
                 f"{vol.max():.3g}): widen `bounds` or check the fit"
             )
-        verts, faces, normals, _ = marching_cubes(
-            vol, level, spacing=tuple(spacing), allow_degenerate=False
-        )
-        verts = verts + lo
-        faces = faces.astype(np.int64)
-        # marching_cubes' normals point down the gradient ('descent'); ours should point up it.
-        tri = verts[faces]
-        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        if np.sum(fn * normals[faces].sum(axis=1)) > 0:
-            faces = faces[:, ::-1].copy()
+        verts, faces = marched(vol, level, spacing, lo)
     if prune is None:
         prune = hasattr(implicit, "coverage")
     if prune:

@@ -69,7 +69,7 @@ LINK = 4.0
 #: A wall's grid has at most this many cells along its longest side (coarser cells beyond, and
 #: the slab grows thicker with them).
 MAX_SIDE = 256
-#: Points per evaluation of the fit.
+#: Points per evaluation of a fit that has no bulk evaluator.
 BATCH = 16384
 
 
@@ -83,13 +83,22 @@ def _walls(points: np.ndarray, link: float) -> list[np.ndarray]:
 
 
 def _evaluate(model, x: np.ndarray) -> np.ndarray:
-    """The fit at `x` (host float64), in batches of `BATCH` points padded to that size."""
+    """The fit at `x` (host float64): through the model's own bulk evaluator where it has one
+    (a partition of unity, as `polygonize` reads it), else in batches of `BATCH` points padded
+    to that size (one compilation)."""
     import jax.numpy as jnp
 
+    from ._polygonize import _BULK_CHUNK, _bulk
+
     out = np.empty(len(x))
-    for i in range(0, len(x), BATCH):
-        q = x[i : i + BATCH]
+    bulk = _bulk(model)
+    step = _BULK_CHUNK if bulk else BATCH
+    for i in range(0, len(x), step):
+        q = x[i : i + step]
         m = len(q)
+        if bulk:
+            out[i : i + m] = bulk(q)[0]
+            continue
         if m < BATCH:
             q = np.concatenate([q, np.repeat(q[:1], BATCH - m, axis=0)])
         out[i : i + m] = np.asarray(model(jnp.asarray(q)), dtype=float)[:m]

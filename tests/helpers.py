@@ -62,6 +62,21 @@ def fd_gradient(f, x, h=1e-6):
     return g
 
 
+def box(lo, size):
+    """A box with corner `lo` and edge lengths `size`: 8 vertices and 12 outward triangles
+    (independent of trimesh)."""
+    unit = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+        dtype=float,
+    )
+    faces = np.array(
+        [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+         [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]],
+        dtype=np.int64,
+    )  # fmt: skip
+    return unit * np.asarray(size, dtype=float) + np.asarray(lo, dtype=float), faces
+
+
 def signed_volume(mesh):
     t = mesh.vertices[mesh.faces]
     return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)

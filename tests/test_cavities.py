@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import box, signed_volume
 
 from jaxrbf import is_watertight
 from jaxrbf._cavities import (
@@ -32,18 +33,13 @@ def _disc(radius, spacing, z=0.0):
     return p, n
 
 
-def _signed_volume(v, f):
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    return np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
-
-
 def test_a_wall_inside_the_solid_becomes_a_thin_closed_cavity_round_it():
     spacing = cell = 0.02
     p, n = _disc(0.4, spacing)
     v, f, count = wall_cavities(_ball, p, n, spacing, cell)
     assert count == 1 and len(f) > 100
     assert is_watertight(Mesh(v, f))
-    assert _signed_volume(v, f) < 0  # its faces face into the cavity, out of the material
+    assert signed_volume(Mesh(v, f)) < 0  # its faces face into the cavity, out of the material
     h = GRID * min(spacing, cell)  # the cavities' own grid
     width = HALF_WIDTH * h
     # thin: both faces within a cell of the half-width off the wall's plane
@@ -78,32 +74,10 @@ def test_crumbs_a_slab_sheds_are_dropped():
     # samples dropped
     from jaxrbf._cavities import CRUMB, _without_crumbs
 
-    def box(lo, hi):
-        v = np.array(
-            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-        )
-        f = np.array(
-            [
-                [0, 1, 3],
-                [0, 3, 2],
-                [4, 6, 7],
-                [4, 7, 5],
-                [0, 4, 5],
-                [0, 5, 1],
-                [2, 3, 7],
-                [2, 7, 6],
-                [0, 2, 6],
-                [0, 6, 4],
-                [1, 5, 7],
-                [1, 7, 3],
-            ]
-        )
-        return v, f
-
     spacing = 0.01
     side = np.sqrt(CRUMB * MIN_SAMPLES) * spacing  # each face of the slab has the crumb area
     v1, f1 = box([0, 0, 0], [side, side, 0.1 * side])
-    v2, f2 = box([1, 1, 1], [1 + spacing, 1 + spacing, 1 + spacing])
+    v2, f2 = box([1, 1, 1], [spacing, spacing, spacing])
     v, f = np.concatenate([v1, v2]), np.concatenate([f1, f2 + len(v1)])
     kept_v, kept_f = _without_crumbs(v, f, spacing)
     assert len(kept_f) == 12 and np.allclose(kept_v, v1)

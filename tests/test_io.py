@@ -6,34 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import box
 
 from jaxrbf import io
 from jaxrbf._errors import InputError
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
-# A unit cube: 8 vertices, 12 outward triangles (independent of trimesh).
-CUBE_V = np.array(
-    [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
-    dtype=float,
-) * np.array([1.25, 0.5, 2.0]) + np.array([0.1, -3.0, 1e-3])
-CUBE_F = np.array(
-    [
-        [0, 2, 1],
-        [0, 3, 2],
-        [4, 5, 6],
-        [4, 6, 7],
-        [0, 1, 5],
-        [0, 5, 4],
-        [1, 2, 6],
-        [1, 6, 5],
-        [2, 3, 7],
-        [2, 7, 6],
-        [3, 0, 4],
-        [3, 4, 7],
-    ],
-    dtype=np.int64,
-)
+# A box: 8 vertices, 12 outward triangles (independent of trimesh).
+CUBE_V, CUBE_F = box([0.1, -3.0, 1e-3], [1.25, 0.5, 2.0])
 
 
 def _cloud(n=50, seed=1):

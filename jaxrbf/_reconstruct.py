@@ -589,11 +589,13 @@ RESOLUTION_RANGE = (128, 1024)
 RESOLUTION_2D, RESOLUTION_2D_RANGE = 6, (256, 2048)
 
 
-def default_resolution(points: np.ndarray) -> int:
+def default_resolution(points: np.ndarray, spacing: float | None = None) -> int:
     """The meshing grid (samples along the longest side) for surface samples `points` (see
-    `RESOLUTION_AT`): a multiple of 16."""
+    `RESOLUTION_AT`), whose point `spacing` is measured when not given: a multiple of 16."""
     side = float(np.max(np.ptp(points, axis=0)))
-    spacings = side / max(point_spacing(points), 1e-12 * side)
+    if spacing is None:
+        spacing = point_spacing(points)
+    spacings = side / max(spacing, 1e-12 * side)
     if points.shape[1] == 2:
         r, (lo, hi) = RESOLUTION_2D * spacings, RESOLUTION_2D_RANGE
     else:
@@ -706,8 +708,9 @@ def mesh_fit(
     from ._accounts import check_curves, check_output
     from ._polygonize import contour, drop_unsupported
 
+    spacing = point_spacing(samples)
     if resolution is None:
-        resolution = default_resolution(samples)
+        resolution = default_resolution(samples, spacing)
         if verbose:
             log(
                 f"meshing on a grid of {resolution} samples along the longest side (from the "
@@ -730,7 +733,6 @@ def mesh_fit(
         bounds=(lo, hi),
     )
     cell = float(np.max(hi - lo)) / max(int(np.max(resolution)) - 1, 1)
-    spacing = point_spacing(samples)
     mesh = drop_unsupported(mesh, samples, spacing, cell, verbose=verbose)
     if walls is not None and len(walls[0]):
         from ._cavities import with_cavities

@@ -56,9 +56,11 @@ from ._reconstruct import default_resolution as default_resolution
 from ._reconstruct import example as example
 from ._reconstruct import fit_surface as fit_surface
 from ._reconstruct import fit_surface_samples as fit_surface_samples
+from ._reconstruct import mesh_fit as mesh_fit
 from ._reconstruct import reconstruct as reconstruct
 from ._reconstruct import surface_from as surface_from
 from ._serialize import load as load
+from ._serialize import load_fit as load_fit
 from ._serialize import save as save
 from ._tune import TuneReport as TuneReport
 from ._tune import default_offset as default_offset

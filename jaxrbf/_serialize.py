@@ -10,6 +10,7 @@ import numpy as np
 from ._errors import InputError
 from ._model import RBFModel, n_poly
 from ._partition import PartitionModel
+from ._reconstruct import Fitted
 from .io import atomic_output, read_npz
 from .kernels import KERNELS
 
@@ -76,9 +77,15 @@ def _partition_arrays(model: PartitionModel) -> dict[str, np.ndarray]:
     return arrays
 
 
-def save(model: RBFModel | PartitionModel, path) -> None:
+def save(model: RBFModel | PartitionModel, path, *, samples=None, normals=None, walls=None) -> None:
     """Write `model` to `path` (`.npz`), atomically: an existing file is replaced only once the new
     one is complete.
+
+    With the fit's surface `samples` (and their `normals`, and the `walls` it left out, as
+    `fit_surface_samples` returns them), the file also holds those (`samples.points`,
+    `samples.normals`, `walls.points`, `walls.normals`), so that `load_fit` gives back what
+    `jaxrbf mesh` needs to mesh the model as `jaxrbf reconstruct` would: the grid that follows
+    the samples' spacing, the pruning, the cavities and the output check.
 
     The file holds `format`, `format_version`, `kind` (`rbf` or `partition`) and the jaxrbf
     version that wrote it. An `rbf` model adds `kernel`, `radius` (NaN for kernels without one),
@@ -105,8 +112,39 @@ def save(model: RBFModel | PartitionModel, path) -> None:
         jaxrbf_version=np.array(__version__),
     )
     arrays.update(body)
+    arrays.update(_sample_arrays(model.dim, samples, normals, walls))
     with atomic_output(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
+
+
+def _points_array(a, dim: int, what: str) -> np.ndarray:
+    """`a` as a finite (n, dim) float64 array, else an `InputError` naming `what`."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != dim:
+        raise InputError(f"save(): `{what}` must have shape (n, {dim}), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"save(): `{what}` has NaN or infinite values")
+    return a
+
+
+def _sample_arrays(dim: int, samples, normals, walls) -> dict[str, np.ndarray]:
+    """The optional sample fields of `save`, checked."""
+    out = {}
+    if samples is None:
+        if normals is not None or walls is not None:
+            raise InputError("save(): `normals` and `walls` are the samples'; pass `samples` too")
+        return out
+    out["samples.points"] = _points_array(samples, dim, "samples")
+    if normals is not None:
+        out["samples.normals"] = _points_array(normals, dim, "normals")
+        if len(out["samples.normals"]) != len(out["samples.points"]):
+            raise InputError("save(): `normals` must have one row per sample")
+    if walls is not None:
+        wp, wn = (_points_array(w, dim, f"walls[{i}]") for i, w in enumerate(walls))
+        if len(wp) != len(wn):
+            raise InputError("save(): `walls` must be (points, normals) of the same length")
+        out["walls.points"], out["walls.normals"] = wp, wn
+    return out
 
 
 class _Fields:
@@ -282,6 +320,31 @@ def load(path) -> RBFModel | PartitionModel:
     that is no jaxrbf model at all (a foreign file), one written by a newer jaxrbf (a newer
     format) and a damaged one (truncated or corrupt archive, a missing or malformed field).
     """
+    return _read(path)[0]
+
+
+def load_fit(path) -> Fitted:
+    """The model of `path` with the samples `save` stored beside it: a `Fitted`
+    `(model, points, normals)` with `.walls`, as `fit_surface_samples` returns it. `points`
+    and `normals` are None (and the walls empty) for a file saved without samples (by `save`
+    without `samples`, or by an earlier jaxrbf); `normals` alone is None when only the
+    points were saved. Validated as `load` validates the model."""
+    model, f = _read(path)
+    dim = model.dim
+    points = normals = None
+    walls = (np.zeros((0, dim)), np.zeros((0, dim)))
+    if "samples.points" in f:
+        points = f.real("samples.points", (None, dim))
+        if "samples.normals" in f:
+            normals = f.real("samples.normals", (len(points), dim))
+    if "walls.points" in f:
+        wp = f.real("walls.points", (None, dim))
+        walls = (wp, f.real("walls.normals", (len(wp), dim)))
+    return Fitted(model, points, normals, walls)
+
+
+def _read(path) -> tuple[RBFModel | PartitionModel, _Fields]:
+    """The model of the file `path` and its validated fields (`load`)."""
     from .io import is_zip_file
 
     path = os.fspath(path)
@@ -320,7 +383,7 @@ def load(path) -> RBFModel | PartitionModel:
         )
     kind = f.text("kind", default="rbf")
     if kind == "rbf":
-        return _rbf_from(f)
+        return _rbf_from(f), f
     if kind == "partition":
-        return _partition_from(f)
+        return _partition_from(f), f
     raise f.damaged(f"field `kind` is {kind!r}, expected 'rbf' or 'partition'")

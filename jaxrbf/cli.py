@@ -121,7 +121,7 @@ def _mesh_options(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="grid samples along the longest side (default: from the input's point spacing, "
-        "128 to 1024 in 3-D; 128 for `mesh`)",
+        "128 to 1024 in 3-D; 128 for `mesh` of a model saved without its samples)",
     )
     g.add_argument("--project", action="store_true", help="Newton-project vertices onto f = 0")
 
@@ -572,8 +572,8 @@ def _out_kinds(source) -> tuple[str, ...]:
 def _run(args) -> int:
     from . import io
     from ._constraints import log
-    from ._reconstruct import fit_surface, fit_surface_samples
-    from ._serialize import load, save
+    from ._reconstruct import fit_surface_samples
+    from ._serialize import load, load_fit, save
 
     _check_options(args)
     if args.command == "reconstruct":
@@ -610,8 +610,10 @@ def _run(args) -> int:
     elif args.command == "fit":
         _check_output(args.output, (".npz",))
         source = _source(args)
-        model = fit_surface(source[0], _normals_arg(source, args), **_fit_kwargs(args))
-        save(model, args.output)
+        fitted = fit_surface_samples(source[0], _normals_arg(source, args), **_fit_kwargs(args))
+        model, samples, normals = fitted
+        # the samples go with the model, so that `jaxrbf mesh` meshes it as reconstruct does
+        save(model, args.output, samples=samples, normals=normals, walls=fitted.walls)
         if not args.quiet:
             log(f"wrote {args.output}")
     elif args.command == "tune":
@@ -637,10 +639,10 @@ def _run(args) -> int:
             log(f"wrote {args.output}")
     elif args.command == "mesh":
         _check_output(args.output, None)
-        model = load(args.model)
+        model, samples, _ = fitted = load_fit(args.model)
         _check_output(args.output, MESH_OUT if model.dim == 3 else CURVE_OUT)
         _check_resolution(args, model=model)
-        _write_surface(model, args)
+        _write_surface(model, args, samples, fitted.walls if samples is not None else None)
     elif args.command == "features":
         from .features import run_features
 

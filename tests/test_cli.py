@@ -39,6 +39,26 @@ def test_reconstruct_fit_mesh_evaluate_on_spot(tmp_path, capsys):
     )  # projected onto f = 0
 
 
+def test_fit_then_mesh_is_reconstruct(tmp_path, capsys):
+    """A model saved by `fit` carries its samples: `mesh` with no options gives reconstruct's
+    mesh (its grid from the samples' spacing, its output check), not a bare 128 grid."""
+    p, n = sphere(300)
+    src = tmp_path / "ball.ply"
+    jaxrbf.io.write_points(src, p, n)
+    direct, model, later = tmp_path / "direct.ply", tmp_path / "m.npz", tmp_path / "later.ply"
+    code, _, err = run(capsys, "reconstruct", src, "-o", direct)
+    assert code == 0, err
+    assert run(capsys, "fit", src, "-o", model, "-q")[0] == 0
+    code, _, err = run(capsys, "mesh", model, "-o", later)
+    assert code == 0, err
+    assert "from the samples' point spacing" in err and "output accounts for its input" in err
+    a, b = jaxrbf.io.read_mesh(direct), jaxrbf.io.read_mesh(later)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
+    _, samples, normals = jaxrbf.load_fit(model)
+    assert samples.shape == (300, 3) and normals.shape == (300, 3)
+
+
 def test_point_cloud_and_kernel_options(tmp_path, capsys):
     p, n = sphere(300)
     src = tmp_path / "ball.xyz"

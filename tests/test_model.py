@@ -169,3 +169,40 @@ def test_save_is_atomic(sphere_model, tmp_path, monkeypatch):
         jaxrbf.save(sphere_model, path)
     assert path.read_bytes() == b"precious"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
+
+
+def test_save_load_fit_keeps_the_samples_and_walls(sphere_model, tmp_path):
+    """`save(..., samples=, normals=, walls=)` round-trips through `load_fit`; a file saved
+    without them gives None and empty walls; bad arrays are refused on save and on load."""
+    rng = np.random.default_rng(2)
+    p, n = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
+    walls = (rng.normal(size=(5, 3)), rng.normal(size=(5, 3)))
+    path = tmp_path / "fit.npz"
+    jaxrbf.save(sphere_model, path, samples=p, normals=n, walls=walls)
+    model, points, normals = fitted = jaxrbf.load_fit(path)
+    np.testing.assert_array_equal(points, p)
+    np.testing.assert_array_equal(normals, n)
+    np.testing.assert_array_equal(fitted.walls[0], walls[0])
+    np.testing.assert_array_equal(fitted.walls[1], walls[1])
+    x = rng.uniform(-1, 1, (8, 3))
+    np.testing.assert_array_equal(np.asarray(model(x)), np.asarray(sphere_model(x)))
+
+    bare = tmp_path / "bare.npz"
+    jaxrbf.save(sphere_model, bare)
+    _, points, normals = fitted = jaxrbf.load_fit(bare)
+    assert points is None and normals is None and fitted.walls[0].shape == (0, 3)
+
+    with pytest.raises(InputError, match=r"`samples` must have shape \(n, 3\)"):
+        jaxrbf.save(sphere_model, path, samples=p[:, :2])
+    with pytest.raises(InputError, match="NaN or infinite"):
+        jaxrbf.save(sphere_model, path, samples=np.where(p > 2, np.nan, p))
+    with pytest.raises(InputError, match="one row per sample"):
+        jaxrbf.save(sphere_model, path, samples=p, normals=n[:-1])
+    with pytest.raises(InputError, match="pass `samples` too"):
+        jaxrbf.save(sphere_model, path, walls=walls)
+    with np.load(path) as z:
+        d = dict(z)
+    d["walls.normals"] = d["walls.normals"][:-1]
+    np.savez(tmp_path / "bad.npz", **d)
+    with pytest.raises(InputError, match="damaged.*walls.normals"):
+        jaxrbf.load_fit(tmp_path / "bad.npz")

@@ -620,3 +620,22 @@ def test_the_walls_left_out_of_the_fit_come_back_as_thin_cavities():
     # the cavities lie inside the solid, clear of its outer surface
     assert np.all(np.asarray(model(cavity)) < 0)
     assert Tree(plain.vertices).query(cavity)[0].min() > HALF_WIDTH * GRID * min(spacing, cell)
+
+
+@pytest.mark.slow
+def test_a_saved_fit_meshes_with_its_walls(tmp_path):
+    # `jaxrbf fit` then `jaxrbf mesh`: the walls go into the model file and come back as the
+    # same cavities
+    from jaxrbf import load_fit, save
+
+    p, n = _two_spheres(3000)
+    fitted = fit_surface_samples(p, n)
+    model, samples, normals = fitted
+    assert len(fitted.walls[0]) > 30
+    path = tmp_path / "fit.npz"
+    save(model, path, samples=samples, normals=normals, walls=fitted.walls)
+    back = load_fit(path)
+    direct = mesh_fit(model, samples, resolution=64, walls=fitted.walls)
+    again = mesh_fit(back[0], back[1], resolution=64, walls=back.walls)
+    np.testing.assert_array_equal(again.faces, direct.faces)
+    np.testing.assert_allclose(again.vertices, direct.vertices, rtol=0, atol=1e-12)

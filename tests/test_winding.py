@@ -67,6 +67,21 @@ def test_winding_number_gradient_matches_finite_differences():
     assert np.allclose(w, winding_number(q, p, p))
 
 
+def test_winding_number_does_not_depend_on_where_the_samples_lie():
+    # the sums run in float32: in raw coordinates a part 1e-3 across, 1e4 from the origin, sat
+    # within one float32 step of itself (every probe read outside; the fit lost its inside)
+    p = _sphere(3000)
+    q = np.random.default_rng(3).uniform(-1.6, 1.6, (500, 3))
+    q = q[np.abs(np.linalg.norm(q, axis=1) - 1) > 0.2]
+    w, g = winding_number(q, p, p, gradient=True)
+    shift, scale = np.array([1e4, -2e4, 5e3]), 1e-3
+    w2, g2 = winding_number(q * scale + shift, p * scale + shift, p, gradient=True)
+    assert np.max(np.abs(w2 - w)) < 1e-3
+    assert np.max(np.abs(g2 * scale - g)) < 1e-2 * np.max(np.abs(g))
+    inside = np.linalg.norm(q, axis=1) < 0.8
+    assert inside.any() and np.all(w2[inside] > 0.9)
+
+
 def _hemisphere(n, seed=0):
     p = _sphere(4 * n, seed)
     return p[p[:, 2] > 0][:n]

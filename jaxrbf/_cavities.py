@@ -69,6 +69,15 @@ LINK = 4.0
 #: A wall's grid has at most this many cells along its longest side (coarser cells beyond, and
 #: the slab grows thicker with them).
 MAX_SIDE = 256
+#: A shell's slab grid: cells of SHELL_GRID x the smaller of the point spacing and the meshing
+#: cell, at most SHELL_MAX_SIDE cells along the shell's longest side.
+SHELL_GRID, SHELL_MAX_SIDE = 1.0, 512
+#: A shell's slab follows the plane of its SHELL_NEIGHBOURS nearest samples weighted by
+#: exp(-(d / (SHELL_SMOOTH spacings))^2).
+SHELL_NEIGHBOURS, SHELL_SMOOTH = 24, 1.5
+SHELL_REACH = 4.0
+#: The slab marched on its grid is then squeezed to this share of its thickness.
+SHELL_SQUEEZE = 0.1
 #: Points per evaluation of a fit that has no bulk evaluator.
 BATCH = 16384
 
@@ -105,14 +114,40 @@ def _evaluate(model, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _slab_field(model, p, n, width: float, spacing: float, h: float, lo, shape):
+def _local_plane(tree, p, n, q, k: int, smooth=None):
+    """The plane of the `k` samples (`p`, normals `n`, k-d tree `tree`) nearest each of `q`:
+    the offset of each query from their mean, its component along their mean normal, and that
+    normal. `smooth`: weights exp(-(distance / smooth)^2) (relative to the nearest, so that they
+    do not underflow), else equal."""
+    dk, idx = tree.query(q, k=k, workers=-1)
+    idx, dk = idx.reshape(len(q), k), dk.reshape(len(q), k)
+    if smooth is None:
+        wt = np.full((len(q), k), 1.0 / k)
+    else:
+        wt = np.exp(-(((dk - dk[:, :1]) / smooth) ** 2))
+        wt /= wt.sum(axis=1, keepdims=True)
+    nn = n[idx]
+    # the normals of a wall's two faces may disagree in sign: align them with the nearest
+    nn = nn * np.sign(np.einsum("ijk,ik->ij", nn, nn[:, 0]))[..., None]
+    nn = np.einsum("ijk,ij->ik", nn, wt)
+    nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-300)
+    off = q - np.einsum("ijk,ij->ik", p[idx], wt)
+    return off, np.einsum("ij,ij->i", off, nn), nn
+
+
+def _slab_field(
+    model, p, n, width: float, spacing: float, h: float, lo, shape, smooth=None, reach=REACH
+):
     """The field whose negative region is the cavity round one wall (samples `p`, normals `n`)
-    on the grid of spacing `h` from `lo` with `shape` cells, border cells positive."""
+    on the grid of spacing `h` from `lo` with `shape` cells, border cells positive; with
+    `model` None, the slab alone (a shell's, `shell_slabs`: not held inside any solid).
+    `smooth`: weigh the nearest samples' planes by exp(-(distance / smooth)^2) (a smooth
+    field, whose faces' normals vary smoothly) instead of equally."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(p)
-    reach = REACH * spacing
-    k = min(NEIGHBOURS, len(p))
+    reach = reach * spacing
+    k = min(NEIGHBOURS if smooth is None else SHELL_NEIGHBOURS, len(p))
     field = np.full(shape, h)
     flat = field.reshape(-1)
     ys = lo[1] + h * np.arange(shape[1])
@@ -127,15 +162,7 @@ def _slab_field(model, p, n, width: float, spacing: float, h: float, lo, shape):
         if len(near) == 0:
             continue
         q = x[near]
-        _, idx = tree.query(q, k=k, workers=-1)
-        idx = idx.reshape(len(q), k)
-        nn = n[idx]
-        # the normals of a wall's two faces may disagree in sign: align them with the nearest
-        nn = nn * np.sign(np.einsum("ijk,ik->ij", nn, nn[:, 0]))[..., None]
-        nn = nn.sum(axis=1)
-        nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-300)
-        off = q - p[idx].mean(axis=1)
-        along = np.einsum("ij,ij->i", off, nn)
+        off, along, nn = _local_plane(tree, p, n, q, k, smooth)
         slab = np.abs(along) - width
         # past the wall's edge its nearest samples all lie on one side: their mean is off
         # sideways by more than within the wall, where they surround the point
@@ -145,7 +172,7 @@ def _slab_field(model, p, n, width: float, spacing: float, h: float, lo, shape):
         inside = value < h  # only there can the fit change the sign
         pending.append(i * slice_size + near[inside])
         points.append(q[inside])
-    if pending:
+    if pending and model is not None:
         at = np.concatenate(pending)
         # one pass of the fit over every candidate, in batches of one size
         flat[at] = np.maximum(flat[at], _evaluate(model, np.concatenate(points)) + DEPTH * width)
@@ -230,3 +257,75 @@ def with_cavities(mesh, model, walls, normals, spacing: float, cell: float, verb
         return mesh
     base = np.asarray(mesh.vertices)
     return Mesh(np.concatenate([base, v]), np.concatenate([np.asarray(mesh.faces), f + len(base)]))
+
+
+def shell_slabs(shells, normals, spacing: float, cell: float):
+    """Thin closed slabs round the `shells` (samples of pieces that bound no volume, (k, 3),
+    with their `normals`: `jaxrbf._winding.shell_samples`), as `(vertices, faces, count)`: each
+    linked piece's slab (the points within a half-width of its local plane, as a cavity's, but
+    solid and standing on its own), its faces turned out, and how many slabs were meshed."""
+    from scipy.spatial import cKDTree
+
+    from ._polygonize import marched
+
+    p = np.asarray(shells, dtype=float).reshape(-1, 3)
+    n = np.asarray(normals, dtype=float).reshape(-1, 3)
+    spacing = float(spacing)
+    fine = SHELL_GRID * min(spacing, float(cell)) if cell > 0 else SHELL_GRID * spacing
+    verts, faces, count, offset = [], [], 0, 0
+    if len(p) < MIN_SAMPLES or not fine > 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0
+    reach = SHELL_REACH * spacing
+    for idx in _walls(p, LINK * spacing):
+        if len(idx) < MIN_SAMPLES:
+            continue
+        wp, wn = p[idx], n[idx]
+        h = max(fine, float(np.max(np.ptp(wp, axis=0)) + 2 * reach) / SHELL_MAX_SIDE)
+        width = HALF_WIDTH * h
+        lo = wp.min(axis=0) - reach - 2 * h
+        hi = wp.max(axis=0) + reach + 2 * h
+        shape = tuple(int(s) for s in np.ceil((hi - lo) / h).astype(int) + 1)
+        field = _slab_field(
+            None, wp, wn, width, spacing, h, lo, shape, SHELL_SMOOTH * spacing, SHELL_REACH
+        )
+        if not field.min() < 0:
+            continue
+        v, f = marched(field, 0.0, h, lo)
+        v, f = _without_crumbs(v, f, spacing)
+        if len(f) == 0:
+            continue
+        # the slab squeezed towards its samples' plane along the plane's normal (a monotone
+        # map along each normal: no fold), so that its faces lie SHELL_SQUEEZE of the grid's
+        # half-width from the samples
+        _, along, nn = _local_plane(
+            cKDTree(wp), wp, wn, v, min(SHELL_NEIGHBOURS, len(wp)), SHELL_SMOOTH * spacing
+        )
+        v = v - ((1.0 - SHELL_SQUEEZE) * along)[:, None] * nn
+        verts.append(v)
+        faces.append(f + offset)
+        offset += len(v)
+        count += 1
+    if not verts:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0
+    return np.concatenate(verts), np.concatenate(faces).astype(np.int64), count
+
+
+def with_shells(mesh, shells, normals, spacing: float, cell: float, verbose=False):
+    """`mesh` with the slabs of `shell_slabs` round the `shells` added."""
+    from .io import Mesh
+
+    if shells is None or len(shells) == 0 or not math.isfinite(spacing):
+        return mesh
+    v, f, count = shell_slabs(shells, normals, spacing, cell)
+    if verbose:
+        from ._constraints import log
+
+        log(
+            f"{len(shells):,} samples on open shells: {count} thin "
+            f"{'slab' if count == 1 else 'slabs'} of {len(f):,} faces round them"
+        )
+    if count == 0:
+        return mesh
+    base = np.asarray(mesh.vertices).reshape(-1, 3)
+    faces = np.asarray(mesh.faces).reshape(-1, 3)
+    return Mesh(np.concatenate([base, v]), np.concatenate([faces, f + len(base)]))

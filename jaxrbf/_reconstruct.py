@@ -314,13 +314,21 @@ def fit_surface(source, normals=None, **options) -> AbstractModel:
 class Fitted(tuple):
     """What `fit_surface_samples` returns: `(model, points, normals)`, and as `walls` the
     buried samples and their normals (`((k, d), (k, d))`, k = 0 when none), which the fit left
-    out and `mesh_fit` keeps as thin cavities (`jaxrbf._cavities`)."""
+    out and `mesh_fit` keeps as thin cavities (`jaxrbf._cavities`), and as `shells` the samples
+    of open pieces that bound no volume (`jaxrbf._winding.shell_samples`), which `mesh_fit`
+    meshes as thin slabs (`jaxrbf._cavities.shell_slabs`). When every sample is on a shell,
+    `points` and `normals` are empty and the model is the fit of them all, closed."""
 
     walls: tuple[np.ndarray, np.ndarray]
+    shells: tuple[np.ndarray, np.ndarray]
 
-    def __new__(cls, model, points, normals, walls):
+    def __new__(cls, model, points, normals, walls, shells=None):
         self = super().__new__(cls, (model, points, normals))
         self.walls = walls
+        if shells is None:
+            d = np.shape(walls[0])[1] if np.ndim(walls[0]) == 2 else 3
+            shells = (np.zeros((0, d)), np.zeros((0, d)))
+        self.shells = shells
         return self
 
 
@@ -481,6 +489,7 @@ def fit_surface_samples(
             frac, rebuild = near, True
     fitted_p, fitted_n, vc = p, n, None
     walls = (np.zeros((0, p.shape[1])), np.zeros((0, p.shape[1])))
+    shells, every = walls, False
     if volume:
         from ._winding import volume_constraints
 
@@ -491,7 +500,27 @@ def fit_surface_samples(
         exact = not approximate
         if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
-        vc = volume_constraints(p, n, rims=exact, close=True, bury=exact, orient=True)
+        spacing, areas = point_spacing(p), None
+        if exact:
+            from ._winding import open_shells
+
+            found, areas = open_shells(p, n, spacing, seed=seed)
+            if found.mask.any():
+                log(found.summary())
+                shells = (p[found.mask], n[found.mask])
+                rest = ~found.mask
+                if rest.sum() >= SHELL_REST:
+                    # the rest is fitted and closed without them (near a shell, w reads
+                    # +-1/2: the rest's volume constraints would close across it)
+                    p, n, rebuild = p[rest], n[rest], True
+                    spacing, areas = point_spacing(p), None
+                else:
+                    # all shells: the model is still the fit of them all, closed (f and its
+                    # render have an inside); the mesh is the slabs alone
+                    every = True
+        vc = volume_constraints(
+            p, n, spacing, areas, rims=exact, close=True, bury=exact, orient=True
+        )
         if vc.flipped:
             # every normal pointed into the solid: the fit, the volume constraints and the
             # output's orientation want them out
@@ -502,7 +531,7 @@ def fit_surface_samples(
             )
         if verbose:
             log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
-        if vc.buried.any():
+        if vc.buried.any() and not every:
             # walls inside the solid: not fitted (the output keeps them as thin cavities)
             walls = (p[vc.buried], n[vc.buried])
             p, n, rebuild = p[~vc.buried], n[~vc.buried], True
@@ -574,8 +603,14 @@ def fit_surface_samples(
         background=bg,
         verbose=verbose,
     )
-    return Fitted(model, p, n, walls)
+    if every:
+        return Fitted(model, p[:0], n[:0], walls, shells)
+    return Fitted(model, p, n, walls, shells)
 
+
+#: Open shells (`jaxrbf._winding.shell_samples`) leave the rest of the samples to a closed fit
+#: of their own when at least this many remain.
+SHELL_REST = 100
 
 #: The default meshing grid follows the samples' density: `RESOLUTION_AT` samples along the
 #: longest side for `SPACINGS_AT` median point spacings along it, growing as the
@@ -684,6 +719,7 @@ def reconstruct(
         progress=progress,
         verbose=verbose,
         walls=fitted.walls,
+        shells=fitted.shells,
     )
 
 
@@ -696,6 +732,7 @@ def mesh_fit(
     progress: bool | None = None,
     verbose: bool = False,
     walls=None,
+    shells=None,
 ):
     """The surface of a fit of the surface `samples`: a mesh (`mesh_closed`) in 3-D, curves
     (`contour`) in 2-D, at `resolution` (default: `default_resolution(samples)`), checked
@@ -704,13 +741,21 @@ def mesh_fit(
     `SolveError` that says what went wrong, never a result. Mesh components with no sample
     near are dropped first (`drop_unsupported`). `walls`: the buried samples and their normals
     that the fit left out (`Fitted.walls`), kept in a mesh as thin cavities
-    (`jaxrbf._cavities`) and checked with the samples."""
+    (`jaxrbf._cavities`) and checked with the samples. `shells`: the samples of open pieces and
+    their normals (`Fitted.shells`), meshed as thin closed slabs round them
+    (`jaxrbf._cavities.shell_slabs`) beside the fit's surface (instead of it, when `samples` is
+    empty) and checked with the samples."""
     from ._accounts import check_curves, check_output
     from ._polygonize import contour, drop_unsupported
+    from .io import Mesh
 
-    spacing = point_spacing(samples)
+    samples = np.asarray(samples, dtype=float)
+    every = samples
+    if shells is not None and len(shells[0]):
+        every = np.concatenate([samples.reshape(-1, shells[0].shape[1]), shells[0]])
+    spacing = point_spacing(every)
     if resolution is None:
-        resolution = default_resolution(samples, spacing)
+        resolution = default_resolution(every, spacing)
         if verbose:
             log(
                 f"meshing on a grid of {resolution} samples along the longest side (from the "
@@ -723,22 +768,30 @@ def mesh_fit(
             log(f"{len(out)} curves in {time.perf_counter() - t0:.1f} s")
         _accounted(check_curves(out, samples), verbose)
         return out
-    lo, hi = meshing_box(samples)
-    mesh = mesh_closed(
-        model,
-        resolution=resolution,
-        project=project,
-        progress=progress,
-        verbose=verbose,
-        bounds=(lo, hi),
-    )
+    lo, hi = meshing_box(every)
     cell = float(np.max(hi - lo)) / max(int(np.max(resolution)) - 1, 1)
-    mesh = drop_unsupported(mesh, samples, spacing, cell, verbose=verbose)
+    if len(samples):
+        mesh = mesh_closed(
+            model,
+            resolution=resolution,
+            project=project,
+            progress=progress,
+            verbose=verbose,
+            bounds=(lo, hi),
+        )
+        mesh = drop_unsupported(mesh, samples, spacing, cell, verbose=verbose)
+    else:  # every sample on an open shell: the slabs are the surface
+        mesh = Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     if walls is not None and len(walls[0]):
         from ._cavities import with_cavities
 
         mesh = with_cavities(mesh, model, *walls, spacing, cell, verbose=verbose)
         samples = np.concatenate([samples, walls[0]])
+    if shells is not None and len(shells[0]):
+        from ._cavities import with_shells
+
+        mesh = with_shells(mesh, *shells, spacing, cell, verbose=verbose)
+        samples = np.concatenate([samples.reshape(-1, 3), shells[0]])
     if verbose:
         log(
             f"mesh of {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces in "

@@ -77,13 +77,22 @@ def _partition_arrays(model: PartitionModel) -> dict[str, np.ndarray]:
     return arrays
 
 
-def save(model: RBFModel | PartitionModel, path, *, samples=None, normals=None, walls=None) -> None:
+def save(
+    model: RBFModel | PartitionModel,
+    path,
+    *,
+    samples=None,
+    normals=None,
+    walls=None,
+    shells=None,
+) -> None:
     """Write `model` to `path` (`.npz`), atomically: an existing file is replaced only once the new
     one is complete.
 
-    With the fit's surface `samples` (and their `normals`, and the `walls` it left out, as
-    `fit_surface_samples` returns them), the file also holds those (`samples.points`,
-    `samples.normals`, `walls.points`, `walls.normals`), so that `load_fit` gives back what
+    With the fit's surface `samples` (and their `normals`, the `walls` it left out and the
+    open `shells` meshed as slabs, as `fit_surface_samples` returns them), the file also holds
+    those (`samples.points`, `samples.normals`, `walls.points`, `walls.normals`,
+    `shells.points`, `shells.normals`), so that `load_fit` gives back what
     `jaxrbf mesh` needs to mesh the model as `jaxrbf reconstruct` would: the grid that follows
     the samples' spacing, the pruning, the cavities and the output check.
 
@@ -112,7 +121,7 @@ def save(model: RBFModel | PartitionModel, path, *, samples=None, normals=None, 
         jaxrbf_version=np.array(__version__),
     )
     arrays.update(body)
-    arrays.update(_sample_arrays(model.dim, samples, normals, walls))
+    arrays.update(_sample_arrays(model.dim, samples, normals, walls, shells))
     with atomic_output(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
@@ -127,23 +136,27 @@ def _points_array(a, dim: int, what: str) -> np.ndarray:
     return a
 
 
-def _sample_arrays(dim: int, samples, normals, walls) -> dict[str, np.ndarray]:
+def _sample_arrays(dim: int, samples, normals, walls, shells=None) -> dict[str, np.ndarray]:
     """The optional sample fields of `save`, checked."""
     out = {}
     if samples is None:
-        if normals is not None or walls is not None:
-            raise InputError("save(): `normals` and `walls` are the samples'; pass `samples` too")
+        if normals is not None or walls is not None or shells is not None:
+            raise InputError(
+                "save(): `normals`, `walls` and `shells` are the samples'; pass `samples` too"
+            )
         return out
     out["samples.points"] = _points_array(samples, dim, "samples")
     if normals is not None:
         out["samples.normals"] = _points_array(normals, dim, "normals")
         if len(out["samples.normals"]) != len(out["samples.points"]):
             raise InputError("save(): `normals` must have one row per sample")
-    if walls is not None:
-        wp, wn = (_points_array(w, dim, f"walls[{i}]") for i, w in enumerate(walls))
+    for name, pair in (("walls", walls), ("shells", shells)):
+        if pair is None:
+            continue
+        wp, wn = (_points_array(w, dim, f"{name}[{i}]") for i, w in enumerate(pair))
         if len(wp) != len(wn):
-            raise InputError("save(): `walls` must be (points, normals) of the same length")
-        out["walls.points"], out["walls.normals"] = wp, wn
+            raise InputError(f"save(): `{name}` must be (points, normals) of the same length")
+        out[f"{name}.points"], out[f"{name}.normals"] = wp, wn
     return out
 
 
@@ -325,22 +338,24 @@ def load(path) -> RBFModel | PartitionModel:
 
 def load_fit(path) -> Fitted:
     """The model of `path` with the samples `save` stored beside it: a `Fitted`
-    `(model, points, normals)` with `.walls`, as `fit_surface_samples` returns it. `points`
-    and `normals` are None (and the walls empty) for a file saved without samples (by `save`
+    `(model, points, normals)` with `.walls` and `.shells`, as `fit_surface_samples` returns
+    it. `points` and `normals` are None (and the walls and shells empty) for a file saved without samples (by `save`
     without `samples`, or by an earlier jaxrbf); `normals` alone is None when only the
     points were saved. Validated as `load` validates the model."""
     model, f = _read(path)
     dim = model.dim
     points = normals = None
-    walls = (np.zeros((0, dim)), np.zeros((0, dim)))
     if "samples.points" in f:
         points = f.real("samples.points", (None, dim))
         if "samples.normals" in f:
             normals = f.real("samples.normals", (len(points), dim))
-    if "walls.points" in f:
-        wp = f.real("walls.points", (None, dim))
-        walls = (wp, f.real("walls.normals", (len(wp), dim)))
-    return Fitted(model, points, normals, walls)
+    pairs = {}
+    for name in ("walls", "shells"):
+        pairs[name] = (np.zeros((0, dim)), np.zeros((0, dim)))
+        if f"{name}.points" in f:
+            wp = f.real(f"{name}.points", (None, dim))
+            pairs[name] = (wp, f.real(f"{name}.normals", (len(wp), dim)))
+    return Fitted(model, points, normals, pairs["walls"], pairs["shells"])
 
 
 def _read(path) -> tuple[RBFModel | PartitionModel, _Fields]:

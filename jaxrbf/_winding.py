@@ -129,6 +129,15 @@ ORIENT_TESTED, ORIENT_LEVEL = 20_000, 0.1
 LEVEL_SAMPLES = 20_000
 LEVEL_NEIGHBOURS = 128
 LEVEL_CLIP = (0.5, 0.7)
+#: Open shells (`shell_samples`): pieces (samples linked by their SHELL_LINK_K nearest within
+#: SHELL_LINK spacings) of at least SHELL_MIN_SAMPLES samples whose median mid-value of w,
+#: read JUMP_SPACINGS along and against the normals of up to SHELL_TESTED of them, is below
+#: SHELL_LEVEL (halfway between a flat sheet's 0 and a closed surface's 1/2; an open hemisphere
+#: reads 0.31, a 30-degree cap 0.11), with a median jump across them above SHELL_JUMP (a thin
+#: closed plate, both of whose readings fall outside it, jumps by about 0).
+SHELL_LINK, SHELL_LINK_K = 4.0, 12
+SHELL_MIN_SAMPLES, SHELL_TESTED = 100, 256
+SHELL_LEVEL, SHELL_JUMP = 0.25, 0.5
 
 
 def sample_areas(points: np.ndarray, k: int = AREA_NEIGHBOURS, tree=None) -> np.ndarray:
@@ -584,6 +593,108 @@ def volume_constraints(
         flipped=flipped,
         level_median=float(np.median(level.levels)) if len(level.levels) else 0.5,
     )
+
+
+def pieces(points: np.ndarray, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
+    """A label per sample: the pieces of `points` linked by each sample's `SHELL_LINK_K` nearest
+    samples within `SHELL_LINK` spacings (a k-nearest graph: its size grows with the samples,
+    where all pairs within that distance would grow with their density too)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(points)
+    tree = cKDTree(points) if tree is None else tree
+    k = min(SHELL_LINK_K + 1, n)
+    d, idx = tree.query(points, k=k, distance_upper_bound=SHELL_LINK * spacing, workers=-1)
+    d, idx = d.reshape(n, k), idx.reshape(n, k)
+    ok = np.isfinite(d)
+    rows = np.repeat(np.arange(n), k).reshape(n, k)[ok]
+    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, idx[ok])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+class Shells(NamedTuple):
+    """`shell_samples`' answer: `mask`, which samples lie on open shells; `pieces` and
+    `shells`, how many pieces were tested and found open; `level`, the shells' median
+    mid-value of w (NaN without any)."""
+
+    mask: np.ndarray
+    pieces: int
+    shells: int
+    level: float
+
+    def summary(self) -> str:
+        return (
+            f"{int(self.mask.sum()):,} samples on {self.shells} open "
+            f"{'piece' if self.shells == 1 else 'pieces'} that bound no volume (median mid-value "
+            f"of w across them {self.level:.2f}, a closed surface's 1/2): meshed as thin "
+            "two-sided slabs round them, not closed"
+        )
+
+
+def shell_samples(
+    points, normals, spacing: float, wtree: WindingTree, tree: cKDTree | None = None, seed=0
+) -> Shells:
+    """Which samples lie on open shells: pieces (`pieces`) that bound no volume, such as a
+    sheet, a leaf, a shallow cap or an artist's car body without its underside. Across a
+    closed surface w reads about 1 just inside and 0 just outside (mid-value 1/2); across an
+    open sheet +1/2 and -1/2 (mid-value 0). A piece whose median mid-value, `JUMP_SPACINGS`
+    spacings along and against the normals (where the sum over discrete samples is smooth), is
+    below `SHELL_LEVEL` surrounds less than it leaves open: closing it (a lid over a bowl, a
+    lumpy cap across a sheet that w never puts inside) invents more surface than the input
+    has. Such a piece is better kept as it is, thickened (`jaxrbf._cavities.shell_slabs`).
+
+    Smaller pieces go with the nearest piece tested. Cost: 2 x `SHELL_TESTED` evaluations of w
+    per piece of `SHELL_MIN_SAMPLES` or more."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float)
+    mask = np.zeros(len(p), dtype=bool)
+    if len(p) < SHELL_MIN_SAMPLES:
+        return Shells(mask, 0, 0, float("nan"))
+    label = pieces(p, spacing, tree)
+    count = np.bincount(label)
+    big = np.flatnonzero(count >= SHELL_MIN_SAMPLES)
+    rng = np.random.default_rng(seed)
+    picks = [
+        rng.choice(np.flatnonzero(label == g), min(int(count[g]), SHELL_TESTED), replace=False)
+        for g in big
+    ]
+    if not picks:
+        return Shells(mask, 0, 0, float("nan"))
+    idx = np.concatenate(picks)
+    step = JUMP_SPACINGS * spacing * nrm[idx]
+    w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
+    w_out, w_in = w[: len(idx)], w[len(idx) :]
+    mid, jump = (w_in + w_out) / 2, w_in - w_out
+    levels, ends = [], np.cumsum([len(k) for k in picks])
+    for g, sel in zip(big, np.split(np.arange(len(idx)), ends[:-1]), strict=True):
+        # normals turned into the solid turn w and the side read: the jump stays, the
+        # mid-value changes sign (a closed piece reads -1/2)
+        if abs(np.median(mid[sel])) < SHELL_LEVEL and np.median(jump[sel]) > SHELL_JUMP:
+            mask[label == g] = True
+            levels.append(mid[sel])
+    small = count[label] < SHELL_MIN_SAMPLES
+    if levels and small.any():
+        # a few samples off on their own (random sampling leaves gaps) go with the nearest
+        # piece that was tested
+        tested = np.flatnonzero(~small)
+        _, near = cKDTree(p[tested]).query(p[small], workers=-1)
+        mask[small] = mask[tested[near]]
+    level = float(np.median(np.concatenate(levels))) if levels else float("nan")
+    return Shells(mask, len(big), len(levels), level)
+
+
+def open_shells(points, normals, spacing: float, seed: int = 0) -> tuple[Shells, np.ndarray]:
+    """`shell_samples` of the samples, with the winding tree built for it, and the samples'
+    `calibrated_areas` (as `volume_constraints` computes them: pass them on)."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float)
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    tree = cKDTree(p)
+    rim = boundary_mask(p, nrm, tree=tree)
+    areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
+    found = shell_samples(p, nrm, spacing, winding_tree(p, nrm, areas), tree, seed=seed)
+    return found, areas
 
 
 def points_inward(points, wtree: WindingTree, tested: int = ORIENT_TESTED) -> bool:

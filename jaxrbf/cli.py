@@ -456,11 +456,11 @@ def _normals_arg(source, args):
     return args.normals
 
 
-def _write_surface(model, args, samples=None, walls=None):
+def _write_surface(model, args, samples=None, walls=None, shells=None):
     """Mesh (or contour) `model` to `args.output`; returns the mesh (3-D) or None. With the
     fit's surface `samples`, the grid follows their spacing and the output is checked against
     them before it is written (`jaxrbf._reconstruct.mesh_fit`, which keeps the fit's `walls` as
-    thin cavities)."""
+    thin cavities and meshes its open `shells` as thin slabs)."""
     from . import io
     from ._constraints import log
     from ._polygonize import contour
@@ -477,6 +477,7 @@ def _write_surface(model, args, samples=None, walls=None):
             progress=progress,
             verbose=not args.quiet,
             walls=walls,
+            shells=shells,
         )
         if model.dim == 2:
             io.write_polylines(args.output, out)
@@ -597,12 +598,12 @@ def _run(args) -> int:
                     "--smoothing 1e-6` (a starting lambda > 0)"
                 )
             model, _ = _tuned(source, args)
-            samples = walls = None
+            samples = walls = shells = None
         else:
             fitted = fit_surface_samples(source[0], _normals_arg(source, args), **_fit_kwargs(args))
             model, samples, _ = fitted
-            walls = fitted.walls
-        mesh = _write_surface(model, args, samples, walls)
+            walls, shells = fitted.walls, fitted.shells
+        mesh = _write_surface(model, args, samples, walls, shells)
         if mesh is not None and not args.quiet:
             _log_topology(source, mesh)
         if args.preview and model.dim == 3:
@@ -613,7 +614,14 @@ def _run(args) -> int:
         fitted = fit_surface_samples(source[0], _normals_arg(source, args), **_fit_kwargs(args))
         model, samples, normals = fitted
         # the samples go with the model, so that `jaxrbf mesh` meshes it as reconstruct does
-        save(model, args.output, samples=samples, normals=normals, walls=fitted.walls)
+        save(
+            model,
+            args.output,
+            samples=samples,
+            normals=normals,
+            walls=fitted.walls,
+            shells=fitted.shells,
+        )
         if not args.quiet:
             log(f"wrote {args.output}")
     elif args.command == "tune":
@@ -642,7 +650,10 @@ def _run(args) -> int:
         model, samples, _ = fitted = load_fit(args.model)
         _check_output(args.output, MESH_OUT if model.dim == 3 else CURVE_OUT)
         _check_resolution(args, model=model)
-        _write_surface(model, args, samples, fitted.walls if samples is not None else None)
+        if samples is None:
+            _write_surface(model, args)
+        else:
+            _write_surface(model, args, samples, fitted.walls, fitted.shells)
     elif args.command == "features":
         from .features import run_features
 

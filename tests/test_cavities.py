@@ -12,8 +12,12 @@ from jaxrbf._cavities import (
     HALF_WIDTH,
     MIN_SAMPLES,
     REACH,
+    SHELL_GRID,
+    SHELL_SQUEEZE,
+    shell_slabs,
     wall_cavities,
     with_cavities,
+    with_shells,
 )
 from jaxrbf.io import Mesh
 
@@ -82,3 +86,54 @@ def test_crumbs_a_slab_sheds_are_dropped():
     kept_v, kept_f = _without_crumbs(v, f, spacing)
     assert len(kept_f) == 12 and np.allclose(kept_v, v1)
     assert len(_without_crumbs(v1, f1, spacing)[1]) == 12  # one piece: kept as it is
+
+
+def _bent(n, seed=0, curve=0.3):
+    """`n` random samples of an open bent sheet z = curve x^2 over the unit square, with its
+    upward normals, and the sheet's height function."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (n, 2))
+    p = np.column_stack([xy, curve * xy[:, 0] ** 2])
+    nrm = np.column_stack([-2 * curve * xy[:, 0], np.zeros(n), np.ones(n)])
+    return p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), lambda x: curve * x[:, 0] ** 2
+
+
+def test_an_open_shell_becomes_a_thin_closed_slab_that_follows_it():
+    p, nrm, height = _bent(4000)
+    spacing = 2.0 / np.sqrt(4000)
+    cell = 0.03
+    v, f, count = shell_slabs(p, nrm, spacing, cell)
+    assert count == 1 and len(f) > 1000
+    mesh = Mesh(v, f)
+    assert is_watertight(mesh)
+    assert signed_volume(mesh) > 0  # faces turned out of the slab
+    # both faces hug the sheet: within the squeezed half-width of its grid (plus marching's
+    # slack), far thinner than a spacing, and smooth: they are not dimpled at the samples
+    half = SHELL_SQUEEZE * HALF_WIDTH * SHELL_GRID * min(spacing, cell)
+    gap = np.abs(v[:, 2] - height(v))
+    assert np.quantile(gap, 0.99) < 2 * half and half < 0.2 * spacing
+    # it covers the sheet to its edge and stops within a few spacings past it
+    from scipy.spatial import cKDTree
+
+    assert cKDTree(v).query(p)[0].max() < 2 * spacing
+    assert np.abs(v[:, :2]).max() < 1 + 3 * spacing
+    # a face's normal is the sheet's (up or down), away from the rim
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    fn = np.cross(b - a, c - a)
+    area = np.linalg.norm(fn, axis=1)
+    centre = (a + b + c) / 3
+    inner = np.abs(centre[:, :2]).max(axis=1) < 0.9
+    true = np.column_stack([-0.6 * centre[:, 0], np.zeros(len(centre)), np.ones(len(centre))])
+    cos = np.abs(np.sum(fn * true, 1)) / area / np.linalg.norm(true, axis=1)
+    assert np.average(cos[inner], weights=area[inner]) > 0.995
+
+
+def test_shell_slabs_join_a_mesh_and_too_few_samples_make_none():
+    p, nrm, _ = _bent(2000)
+    spacing = 2.0 / np.sqrt(2000)
+    base = Mesh(*box([3.0, -0.25, -0.25], 0.5))
+    joined = with_shells(base, p, nrm, spacing, 0.05)
+    assert len(joined.faces) > len(base.faces) and is_watertight(joined)
+    np.testing.assert_array_equal(joined.vertices[: len(base.vertices)], base.vertices)
+    # fewer samples than a wall's minimum: nothing added
+    assert with_shells(base, p[: MIN_SAMPLES - 1], nrm[: MIN_SAMPLES - 1], spacing, 0.05) is base

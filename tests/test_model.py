@@ -172,18 +172,21 @@ def test_save_is_atomic(sphere_model, tmp_path, monkeypatch):
 
 
 def test_save_load_fit_keeps_the_samples_and_walls(sphere_model, tmp_path):
-    """`save(..., samples=, normals=, walls=)` round-trips through `load_fit`; a file saved
+    """`save(..., samples=, normals=, walls=, shells=)` round-trips through `load_fit`; a file saved
     without them gives None and empty walls; bad arrays are refused on save and on load."""
     rng = np.random.default_rng(2)
     p, n = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
     walls = (rng.normal(size=(5, 3)), rng.normal(size=(5, 3)))
+    shells = (rng.normal(size=(7, 3)), rng.normal(size=(7, 3)))
     path = tmp_path / "fit.npz"
-    jaxrbf.save(sphere_model, path, samples=p, normals=n, walls=walls)
+    jaxrbf.save(sphere_model, path, samples=p, normals=n, walls=walls, shells=shells)
     model, points, normals = fitted = jaxrbf.load_fit(path)
     np.testing.assert_array_equal(points, p)
     np.testing.assert_array_equal(normals, n)
     np.testing.assert_array_equal(fitted.walls[0], walls[0])
     np.testing.assert_array_equal(fitted.walls[1], walls[1])
+    np.testing.assert_array_equal(fitted.shells[0], shells[0])
+    np.testing.assert_array_equal(fitted.shells[1], shells[1])
     x = rng.uniform(-1, 1, (8, 3))
     np.testing.assert_array_equal(np.asarray(model(x)), np.asarray(sphere_model(x)))
 
@@ -191,6 +194,7 @@ def test_save_load_fit_keeps_the_samples_and_walls(sphere_model, tmp_path):
     jaxrbf.save(sphere_model, bare)
     _, points, normals = fitted = jaxrbf.load_fit(bare)
     assert points is None and normals is None and fitted.walls[0].shape == (0, 3)
+    assert fitted.shells[0].shape == (0, 3)
 
     with pytest.raises(InputError, match=r"`samples` must have shape \(n, 3\)"):
         jaxrbf.save(sphere_model, path, samples=p[:, :2])
@@ -200,6 +204,10 @@ def test_save_load_fit_keeps_the_samples_and_walls(sphere_model, tmp_path):
         jaxrbf.save(sphere_model, path, samples=p, normals=n[:-1])
     with pytest.raises(InputError, match="pass `samples` too"):
         jaxrbf.save(sphere_model, path, walls=walls)
+    with pytest.raises(InputError, match="pass `samples` too"):
+        jaxrbf.save(sphere_model, path, shells=shells)
+    with pytest.raises(InputError, match="`shells` must be"):
+        jaxrbf.save(sphere_model, path, samples=p, shells=(shells[0], shells[1][:-1]))
     with np.load(path) as z:
         d = dict(z)
     d["walls.normals"] = d["walls.normals"][:-1]

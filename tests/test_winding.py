@@ -20,6 +20,7 @@ from jaxrbf._winding import (
     closing_areas,
     closing_level,
     closing_samples,
+    open_shells,
     sample_areas,
     shell_probes,
     unit_jump,
@@ -654,3 +655,70 @@ def test_a_saved_fit_meshes_with_its_walls(tmp_path):
     again = mesh_fit(back[0], back[1], resolution=64, walls=back.walls)
     np.testing.assert_array_equal(again.faces, direct.faces)
     np.testing.assert_allclose(again.vertices, direct.vertices, rtol=0, atol=1e-12)
+
+
+def _sheet_samples(n, seed=0):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (n, 2))
+    p = np.column_stack([xy, 0.2 * np.sin(2 * xy[:, 0])])
+    nrm = np.column_stack([-0.4 * np.cos(2 * xy[:, 0]), np.zeros(n), np.ones(n)])
+    return p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+
+def _plate(n, thickness, seed=0):
+    """Samples of a closed thin box (2 x 2 x `thickness`): its two faces only (the sides are
+    a small share), with their outward normals."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (n, 2))
+    up = np.arange(n) % 2 == 0
+    p = np.column_stack([xy, np.where(up, thickness / 2, -thickness / 2)])
+    return p, np.column_stack([np.zeros((n, 2)), np.where(up, 1.0, -1.0)])
+
+
+@pytest.mark.parametrize("turn", [1.0, -1.0])
+def test_open_shells_are_pieces_that_bound_no_volume(turn):
+    from jaxrbf.objectives import point_spacing
+
+    def found(p, n):
+        return open_shells(p, turn * n, point_spacing(p))[0]
+
+    sheet, sheet_n = _sheet_samples(3000)
+    r = found(sheet, sheet_n)
+    assert r.mask.all() and r.shells == 1 and abs(r.level) < 0.1
+    assert "1 open piece" in r.summary()
+    # closed or mostly closed: a sphere, an open hemisphere (mid-value 0.31), a thin closed
+    # plate whose readings 4 spacings off both fall outside it (a jump of 0, not 1)
+    for p, n in ((_sphere(3000), _sphere(3000)), (_hemisphere(3000), _hemisphere(3000))):
+        assert not found(p, n).mask.any()
+    plate, plate_n = _plate(6000, 0.01)
+    assert not found(plate, plate_n).mask.any()
+    # a sphere beside a sheet: the sheet's piece alone
+    both = np.concatenate([_sphere(3000), sheet + [3.0, 0, 0]])
+    r = found(both, np.concatenate([_sphere(3000), sheet_n]))
+    assert r.pieces == 2 and r.shells == 1 and np.array_equal(r.mask, np.arange(6000) >= 3000)
+
+
+@pytest.mark.slow
+def test_a_sheet_beside_a_closed_piece_is_kept_thin_and_the_piece_closed(tmp_path):
+    from jaxrbf import is_watertight
+    from jaxrbf._reconstruct import reconstruct
+    from jaxrbf.objectives import point_spacing
+
+    sheet, sheet_n = _sheet_samples(3000)
+    sheet = sheet + [3.0, 0, 0]
+    sphere = _sphere(3000)
+    p, n = np.concatenate([sphere, sheet]), np.concatenate([sphere, sheet_n])
+    fitted = fit_surface_samples(p, n)
+    assert len(fitted.shells[0]) == 3000 and len(fitted[1]) == 3000
+    assert float(np.asarray(fitted[0](np.zeros((1, 3))))[0]) < 0  # the sphere has its inside
+    mesh = reconstruct(p, n)
+    assert is_watertight(mesh)
+    v = mesh.vertices
+    # by the sheet, a thin slab: no lid, no lumps (before: a closed cap 0.4 off the sheet)
+    by_sheet = v[v[:, 0] > 1.5]
+    gap = np.abs(by_sheet[:, 2] - 0.2 * np.sin(2 * (by_sheet[:, 0] - 3.0)))
+    assert gap.max() < 0.3 * point_spacing(sheet)
+    # the sphere closed, every sample of both accounted for
+    r = np.linalg.norm(v[v[:, 0] < 1.5], axis=1)
+    assert np.abs(r - 1).max() < 0.02
+    assert cKDTree(v).query(p)[0].max() < 2 * point_spacing(sheet)

@@ -500,11 +500,11 @@ def fit_surface_samples(
         exact = not approximate
         if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
-        spacing, areas = point_spacing(p), None
+        spacing, areas, rim = point_spacing(p), None, None
         if exact:
             from ._winding import open_shells
 
-            found, areas = open_shells(p, n, spacing, seed=seed)
+            found, areas, rim = open_shells(p, n, spacing, seed=seed)
             if found.mask.any():
                 log(found.summary())
                 shells = (p[found.mask], n[found.mask])
@@ -513,13 +513,13 @@ def fit_surface_samples(
                     # the rest is fitted and closed without them (near a shell, w reads
                     # +-1/2: the rest's volume constraints would close across it)
                     p, n, rebuild = p[rest], n[rest], True
-                    spacing, areas = point_spacing(p), None
+                    spacing, areas, rim = point_spacing(p), None, None
                 else:
                     # all shells: the model is still the fit of them all, closed (f and its
                     # render have an inside); the mesh is the slabs alone
                     every = True
         vc = volume_constraints(
-            p, n, spacing, areas, rims=exact, close=True, bury=exact, orient=True
+            p, n, spacing, areas, rims=exact, close=True, bury=exact, orient=True, rim=rim
         )
         if vc.flipped:
             # every normal pointed into the solid: the fit, the volume constraints and the

@@ -467,6 +467,7 @@ def volume_constraints(
     close: bool = False,
     bury: bool | None = None,
     orient: bool = False,
+    rim: np.ndarray | None = None,
 ) -> VolumeConstraints:
     """Volume constraints for oriented 3-D samples (`points`, outward `normals`): octree probes
     away from the samples, the cells where w is near 1/2 refined down to the finest probe size,
@@ -477,6 +478,7 @@ def volume_constraints(
     noise, and probes a few spacings from a noisy surface pull the smoothed fit off it;
     measured on a virtual range scan of the bunny, the precision at 0.5% of the surface above
     its base fell from 99.6% to 93.8% with them). `shell_probes` come with every call.
+    `rim`: the samples' `boundary_mask`, when already known (`open_shells` returns it).
     `close`: also sample the closing surface (`closing_samples`), seeded by the probes over
     holes and past open boundaries. `bury`: also find the buried samples (`buried_samples`;
     default: with `close`). `orient`: when the normals all point into the solid
@@ -496,7 +498,8 @@ def volume_constraints(
     if len(probes) > MAX_PROBES:  # the finest shell holds most: its count goes as 1 / h^2
         finest *= np.sqrt(len(probes) / MAX_PROBES)
         probes, dist, cell = probe_points(p, finest, tree)
-    rim = boundary_mask(p, nrm, tree=tree)
+    if rim is None:
+        rim = boundary_mask(p, nrm, tree=tree)
     if areas is None:
         areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, np.asarray(areas))
@@ -684,9 +687,10 @@ def shell_samples(
     return Shells(mask, len(big), len(levels), level)
 
 
-def open_shells(points, normals, spacing: float, seed: int = 0) -> tuple[Shells, np.ndarray]:
-    """`shell_samples` of the samples, with the winding tree built for it, and the samples'
-    `calibrated_areas` (as `volume_constraints` computes them: pass them on)."""
+def open_shells(points, normals, spacing: float, seed: int = 0):
+    """`shell_samples` of the samples, with the winding tree built for it, the samples'
+    `calibrated_areas` and their `boundary_mask`, as `volume_constraints` computes them (pass
+    them on): `(shells, areas, rim)`."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -694,7 +698,7 @@ def open_shells(points, normals, spacing: float, seed: int = 0) -> tuple[Shells,
     rim = boundary_mask(p, nrm, tree=tree)
     areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     found = shell_samples(p, nrm, spacing, winding_tree(p, nrm, areas), tree, seed=seed)
-    return found, areas
+    return found, areas, rim
 
 
 def points_inward(points, wtree: WindingTree, tested: int = ORIENT_TESTED) -> bool:

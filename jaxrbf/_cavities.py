@@ -200,33 +200,54 @@ def wall_cavities(model, walls, normals, spacing: float, cell: float):
     """Thin closed cavities round the `walls` (buried samples, (k, 3), with their `normals`)
     inside the solid of `model` (see the module docstring), as `(vertices, faces, count)`: the
     cavities' faces turned into them, and how many cavities were meshed."""
+    return _slabs(model, walls, normals, spacing, cell)
+
+
+def _slabs(model, points, normals, spacing: float, cell: float):
+    """The slabs round each linked group of `points` (`wall_cavities` inside `model`; with
+    `model` None, `shell_slabs`), as `(vertices, faces, count)`."""
+    from scipy.spatial import cKDTree
+
     from ._polygonize import marched
 
-    p = np.asarray(walls, dtype=float).reshape(-1, 3)
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
     n = np.asarray(normals, dtype=float).reshape(-1, 3)
     spacing = float(spacing)
-    fine = GRID * min(spacing, float(cell)) if cell > 0 else GRID * spacing
+    shell = model is None
+    grid, max_side, reach = (
+        (SHELL_GRID, SHELL_MAX_SIDE, SHELL_REACH) if shell else (GRID, MAX_SIDE, REACH)
+    )
+    fine = grid * min(spacing, float(cell)) if cell > 0 else grid * spacing
     verts, faces, count, offset = [], [], 0, 0
     if len(p) < MIN_SAMPLES or not fine > 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0
-    reach = REACH * spacing
+    smooth = SHELL_SMOOTH * spacing if shell else None
     for idx in _walls(p, LINK * spacing):
         if len(idx) < MIN_SAMPLES:
             continue
         wp, wn = p[idx], n[idx]
-        h = max(fine, float(np.max(np.ptp(wp, axis=0)) + 2 * reach) / MAX_SIDE)
+        h = max(fine, float(np.max(np.ptp(wp, axis=0)) + 2 * reach * spacing) / max_side)
         width = HALF_WIDTH * h
-        lo = wp.min(axis=0) - reach - 2 * h
-        hi = wp.max(axis=0) + reach + 2 * h
+        lo = wp.min(axis=0) - reach * spacing - 2 * h
+        hi = wp.max(axis=0) + reach * spacing + 2 * h
         shape = tuple(int(s) for s in np.ceil((hi - lo) / h).astype(int) + 1)
-        field = _slab_field(model, wp, wn, width, spacing, h, lo, shape)
+        field = _slab_field(model, wp, wn, width, spacing, h, lo, shape, smooth, reach)
         if not field.min() < 0:
             continue
         v, f = marched(field, 0.0, h, lo)
-        # marched turns the faces up the field's gradient, out of the cavity: a cavity's face into it
-        v, f = _without_crumbs(v, f[:, ::-1], spacing)
+        # marched turns the faces up the field's gradient, out of the slab: a cavity's face
+        # into it
+        v, f = _without_crumbs(v, f if shell else f[:, ::-1], spacing)
         if len(f) == 0:
             continue
+        if shell:
+            # the slab squeezed towards its samples' plane along the plane's normal (a
+            # monotone map along each normal: no fold), so that its faces lie SHELL_SQUEEZE of
+            # the grid's half-width from the samples
+            _, along, nn = _local_plane(
+                cKDTree(wp), wp, wn, v, min(SHELL_NEIGHBOURS, len(wp)), smooth
+            )
+            v = v - ((1.0 - SHELL_SQUEEZE) * along)[:, None] * nn
         verts.append(v)
         faces.append(f + offset)
         offset += len(v)
@@ -238,8 +259,6 @@ def wall_cavities(model, walls, normals, spacing: float, cell: float):
 
 def with_cavities(mesh, model, walls, normals, spacing: float, cell: float, verbose=False):
     """`mesh` with the cavities of `wall_cavities` added (the mesh itself when there are none)."""
-    from .io import Mesh
-
     if walls is None or len(walls) == 0 or not math.isfinite(spacing):
         return mesh
     v, f, count = wall_cavities(model, walls, normals, spacing, cell)
@@ -253,67 +272,31 @@ def with_cavities(mesh, model, walls, normals, spacing: float, cell: float, verb
             else f"{len(walls):,} buried samples (walls inside the solid): no cavity (too few or "
             "too near the outer surface)"
         )
-    if count == 0:
+    return _joined(mesh, v, f)
+
+
+def _joined(mesh, v: np.ndarray, f: np.ndarray):
+    """`mesh` with the mesh `(v, f)` beside it (`mesh` itself when `f` is empty)."""
+    from .io import Mesh
+
+    if len(f) == 0:
         return mesh
-    base = np.asarray(mesh.vertices)
-    return Mesh(np.concatenate([base, v]), np.concatenate([np.asarray(mesh.faces), f + len(base)]))
+    base = np.asarray(mesh.vertices).reshape(-1, 3)
+    faces = np.asarray(mesh.faces).reshape(-1, 3)
+    return Mesh(np.concatenate([base, v]), np.concatenate([faces, f + len(base)]))
 
 
 def shell_slabs(shells, normals, spacing: float, cell: float):
     """Thin closed slabs round the `shells` (samples of pieces that bound no volume, (k, 3),
     with their `normals`: `jaxrbf._winding.shell_samples`), as `(vertices, faces, count)`: each
     linked piece's slab (the points within a half-width of its local plane, as a cavity's, but
-    solid and standing on its own), its faces turned out, and how many slabs were meshed."""
-    from scipy.spatial import cKDTree
-
-    from ._polygonize import marched
-
-    p = np.asarray(shells, dtype=float).reshape(-1, 3)
-    n = np.asarray(normals, dtype=float).reshape(-1, 3)
-    spacing = float(spacing)
-    fine = SHELL_GRID * min(spacing, float(cell)) if cell > 0 else SHELL_GRID * spacing
-    verts, faces, count, offset = [], [], 0, 0
-    if len(p) < MIN_SAMPLES or not fine > 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0
-    reach = SHELL_REACH * spacing
-    for idx in _walls(p, LINK * spacing):
-        if len(idx) < MIN_SAMPLES:
-            continue
-        wp, wn = p[idx], n[idx]
-        h = max(fine, float(np.max(np.ptp(wp, axis=0)) + 2 * reach) / SHELL_MAX_SIDE)
-        width = HALF_WIDTH * h
-        lo = wp.min(axis=0) - reach - 2 * h
-        hi = wp.max(axis=0) + reach + 2 * h
-        shape = tuple(int(s) for s in np.ceil((hi - lo) / h).astype(int) + 1)
-        field = _slab_field(
-            None, wp, wn, width, spacing, h, lo, shape, SHELL_SMOOTH * spacing, SHELL_REACH
-        )
-        if not field.min() < 0:
-            continue
-        v, f = marched(field, 0.0, h, lo)
-        v, f = _without_crumbs(v, f, spacing)
-        if len(f) == 0:
-            continue
-        # the slab squeezed towards its samples' plane along the plane's normal (a monotone
-        # map along each normal: no fold), so that its faces lie SHELL_SQUEEZE of the grid's
-        # half-width from the samples
-        _, along, nn = _local_plane(
-            cKDTree(wp), wp, wn, v, min(SHELL_NEIGHBOURS, len(wp)), SHELL_SMOOTH * spacing
-        )
-        v = v - ((1.0 - SHELL_SQUEEZE) * along)[:, None] * nn
-        verts.append(v)
-        faces.append(f + offset)
-        offset += len(v)
-        count += 1
-    if not verts:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0
-    return np.concatenate(verts), np.concatenate(faces).astype(np.int64), count
+    solid and standing on its own, its plane weighted smoothly, `SHELL_SMOOTH`, then squeezed,
+    `SHELL_SQUEEZE`), its faces turned out, and how many slabs were meshed."""
+    return _slabs(None, shells, normals, spacing, cell)
 
 
 def with_shells(mesh, shells, normals, spacing: float, cell: float, verbose=False):
     """`mesh` with the slabs of `shell_slabs` round the `shells` added."""
-    from .io import Mesh
-
     if shells is None or len(shells) == 0 or not math.isfinite(spacing):
         return mesh
     v, f, count = shell_slabs(shells, normals, spacing, cell)
@@ -324,8 +307,4 @@ def with_shells(mesh, shells, normals, spacing: float, cell: float, verbose=Fals
             f"{len(shells):,} samples on open shells: {count} thin "
             f"{'slab' if count == 1 else 'slabs'} of {len(f):,} faces round them"
         )
-    if count == 0:
-        return mesh
-    base = np.asarray(mesh.vertices).reshape(-1, 3)
-    faces = np.asarray(mesh.faces).reshape(-1, 3)
-    return Mesh(np.concatenate([base, v]), np.concatenate([faces, f + len(base)]))
+    return _joined(mesh, v, f)

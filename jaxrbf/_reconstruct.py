@@ -351,6 +351,7 @@ def fit_surface_samples(
     background="auto",
     fill_holes="auto",
     volume="auto",
+    shells="auto",
     verbose: bool = False,
 ) -> Fitted:
     """Constraints from `source` (see `constraints_from`), then `fit`: `(model, points,
@@ -409,6 +410,13 @@ def fit_surface_samples(
     line on stderr, and off-surface points that the winding number clearly puts on the other
     side of the surface are dropped (exact fits only: `jaxrbf._winding.contradicted`).
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
+    `shells` (with the volume constraints): pieces of the samples that bound no volume (a sheet,
+    a bowl no deeper than a hemisphere, a car body without its underside: their winding number
+    reads little more inside than outside, `jaxrbf._winding.shell_samples`) are left out of the
+    fit and of the samples returned, and come back as the result's `shells`, which `mesh_fit`
+    meshes as thin closed slabs round them, instead of closing them with a lid the input does
+    not have. "auto" (the default): for fits that interpolate; True: also for noisy clouds;
+    False: every piece is closed.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
     from ._fit import METHODS
@@ -423,6 +431,7 @@ def fit_surface_samples(
         )
     auto_flag(fill_holes, "fill_holes", False)  # a bad value fails here, before any work
     auto_flag(volume, "volume", False)
+    auto_flag(shells, "shells", False)
     frac = _offset_fraction(offset)
     p, n, diag, c, noisy, given = _sampled(
         source,
@@ -489,7 +498,7 @@ def fit_surface_samples(
             frac, rebuild = near, True
     fitted_p, fitted_n, vc = p, n, None
     walls = (np.zeros((0, p.shape[1])), np.zeros((0, p.shape[1])))
-    shells, every = walls, False
+    open_pieces, every = walls, False
     if volume:
         from ._winding import volume_constraints
 
@@ -501,13 +510,13 @@ def fit_surface_samples(
         if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
         spacing, areas, rim = point_spacing(p), None, None
-        if exact:
+        if auto_flag(shells, "shells", exact):
             from ._winding import open_shells
 
             found, areas, rim = open_shells(p, n, spacing, seed=seed)
             if found.mask.any():
                 log(found.summary())
-                shells = (p[found.mask], n[found.mask])
+                open_pieces = (p[found.mask], n[found.mask])
                 rest = ~found.mask
                 if rest.sum() >= SHELL_REST:
                     # the rest is fitted and closed without them (near a shell, w reads
@@ -604,8 +613,8 @@ def fit_surface_samples(
         verbose=verbose,
     )
     if every:
-        return Fitted(model, p[:0], n[:0], walls, shells)
-    return Fitted(model, p, n, walls, shells)
+        return Fitted(model, p[:0], n[:0], walls, open_pieces)
+    return Fitted(model, p, n, walls, open_pieces)
 
 
 #: Open shells (`jaxrbf._winding.shell_samples`) leave the rest of the samples to a closed fit

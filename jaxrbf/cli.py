@@ -103,6 +103,15 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         "only for a partition fitted without them)",
     )
     g.add_argument(
+        "--open-pieces",
+        choices=("auto", "thicken", "close"),
+        default="auto",
+        help="3-D: pieces of the input that bound no volume (a sheet, a bowl no deeper than a "
+        "hemisphere, a car body without its underside) are meshed as thin closed slabs round "
+        "them (thicken) or closed like holes (close); auto (default): thicken, except for noisy "
+        "clouds (closed)",
+    )
+    g.add_argument(
         "--denoise",
         nargs="?",
         choices=("auto", "yes", "no"),
@@ -445,6 +454,7 @@ def _fit_kwargs(args) -> dict:
         remove_outliers=_tristate(args.remove_outliers),
         denoise=_tristate(args.denoise),
         fill_holes={"auto": "auto", "fill": True, "keep": False}[args.holes],
+        shells={"auto": "auto", "thicken": True, "close": False}[args.open_pieces],
         verbose=not args.quiet,
     )
 

@@ -222,7 +222,17 @@ def _slabs(model, points, normals, spacing: float, cell: float):
     if len(p) < MIN_SAMPLES or not fine > 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0
     smooth = SHELL_SMOOTH * spacing if shell else None
-    for idx in _walls(p, LINK * spacing):
+    if shell:
+        # a shell can be the whole input: its pieces as `shell_samples` found them (a k-nearest
+        # graph, whose size does not grow with the density as all pairs within LINK would)
+        from ._winding import pieces
+
+        label = pieces(p, spacing)
+        order = np.argsort(label, kind="stable")
+        groups = np.split(order, np.cumsum(np.bincount(label))[:-1])
+    else:
+        groups = _walls(p, LINK * spacing)
+    for idx in groups:
         if len(idx) < MIN_SAMPLES:
             continue
         wp, wn = p[idx], n[idx]

@@ -59,6 +59,41 @@ def test_fit_then_mesh_is_reconstruct(tmp_path, capsys):
     assert samples.shape == (300, 3) and normals.shape == (300, 3)
 
 
+@pytest.mark.slow
+def test_open_pieces_are_thickened_by_default_or_closed_on_request(tmp_path, capsys):
+    """A bent open sheet: by default a thin slab round it (and `fit` + `mesh` give the same);
+    `--open-pieces close` closes it instead, with surface far off the sheet."""
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-1, 1, (600, 2))
+    p = np.column_stack([xy, 0.3 * xy[:, 0] ** 2])
+    n = np.column_stack([-0.6 * xy[:, 0], np.zeros(600), np.ones(600)])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    src = tmp_path / "sheet.ply"
+    jaxrbf.io.write_points(src, p, n)
+
+    def off_sheet(path):
+        v = jaxrbf.io.read_mesh(path).vertices
+        return np.abs(v[:, 2] - 0.3 * v[:, 0] ** 2).max()
+
+    thin, closed = tmp_path / "thin.ply", tmp_path / "closed.ply"
+    code, _, err = run(capsys, "reconstruct", src, "-o", thin)
+    assert code == 0, err
+    assert "600 samples on 1 open piece" in err and "1 thin slab" in err
+    assert off_sheet(thin) < 0.02  # a spacing is about 0.08
+    model, later = tmp_path / "m.npz", tmp_path / "later.ply"
+    assert run(capsys, "fit", src, "-o", model, "-q")[0] == 0
+    fitted = jaxrbf.load_fit(model)
+    assert len(fitted[1]) == 0 and len(fitted.shells[0]) == 600
+    code, _, err = run(capsys, "mesh", model, "-o", later)
+    assert code == 0, err
+    np.testing.assert_allclose(
+        jaxrbf.io.read_mesh(later).vertices, jaxrbf.io.read_mesh(thin).vertices
+    )
+    code, _, err = run(capsys, "reconstruct", src, "-o", closed, "--open-pieces", "close")
+    assert code == 0, err
+    assert "open piece" not in err and off_sheet(closed) > 0.1
+
+
 def test_point_cloud_and_kernel_options(tmp_path, capsys):
     p, n = sphere(300)
     src = tmp_path / "ball.xyz"

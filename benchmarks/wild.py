@@ -18,7 +18,9 @@ skipped, and the skipped ones are listed at the end):
    self-touching), `beetle-10k` (a polygon soup of 33 open pieces, whose face normals need not
    agree), `beetle-alt-10k` (one open surface), `bunny-10k` and `bunny-100k`; closed meshes
    the rows above were not developed on: `spot-10k` (low-poly), `cow-10k` (its tail runs into
-   the body), `fandisk-10k` (sharp edges) and the sparse `bunny-1k`. Poisson gets the
+   the body), `fandisk-10k` (sharp edges) and the sparse `bunny-1k`; at 100k samples also
+   `suzanne-100k` and `teapot-100k` (walls inside the solid), `beetle-100k` and
+   `beetle-alt-100k` (open pieces that bound no volume). Poisson gets the
    same true normals. The reference is the mesh. `holed-spot-10k`: the closed spot mesh with
    HOLES = 12 round holes cut out (each the faces within 3-6% of the diagonal of a seeded random
    vertex; 19% of the faces go, and one horn tip is cut loose), sampled so; the reference is
@@ -189,6 +191,9 @@ INPUTS = (
     # in their sockets, a spout inside its body) are a few percent of the true surface
     Input("suzanne-100k", "mesh", "suzanne.obj", 100_000),
     Input("teapot-100k", "mesh", "teapot.obj", 100_000),
+    # open pieces that bound no volume (a car body without underside or glass), sampled densely
+    Input("beetle-100k", "mesh", "beetle.obj", 100_000),
+    Input("beetle-alt-100k", "mesh", "beetle-alt.obj", 100_000),
     Input("scan-bunny", "scan", "stanford-bunny.obj"),
     Input("scan-cow", "scan", "cow.obj"),
     Input("scan-fandisk", "scan", "fandisk.obj"),

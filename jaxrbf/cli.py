@@ -617,6 +617,12 @@ def _run(args) -> int:
         if mesh is not None and not args.quiet:
             _log_topology(source, mesh)
         if args.preview and model.dim == 3:
+            if shells is not None and len(shells[0]):
+                log(
+                    "note: the preview ray-traces the fit's f = 0; the open shells are in the mesh "
+                    "as thin slabs, not in f (which, fitted without them or without an inside "
+                    "to give, shows them differently or not at all)"
+                )
             _write_picture(model, args.preview, args)
     elif args.command == "fit":
         _check_output(args.output, (".npz",))

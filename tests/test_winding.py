@@ -746,3 +746,10 @@ def test_an_open_hemisphere_is_thickened_by_default_not_closed():
     # the rim (closed, a third of the output lay in it)
     assert np.abs(r - 1).max() < 0.02
     assert mesh.vertices[:, 2].min() > -2 * point_spacing(p)
+
+
+def test_a_bad_shells_option_is_refused_before_any_work():
+    from jaxrbf import InputError, fit_surface
+
+    with pytest.raises(InputError, match="`shells` must be 'auto', True or False"):
+        fit_surface(_sphere(200), _sphere(200), shells="thin")

@@ -86,9 +86,13 @@ def _walls(points: np.ndarray, link: float) -> list[np.ndarray]:
     """Index arrays of the groups of `points` joined by links shorter than `link`."""
     from ._prepare import linked_groups
 
-    k, label = linked_groups(points, link)
+    return _grouped(linked_groups(points, link)[1])
+
+
+def _grouped(label: np.ndarray) -> list[np.ndarray]:
+    """Index arrays of the points of each label (0 .. max)."""
     order = np.argsort(label, kind="stable")
-    return np.split(order, np.cumsum(np.bincount(label, minlength=k))[:-1])
+    return np.split(order, np.cumsum(np.bincount(label))[:-1])
 
 
 def _evaluate(model, x: np.ndarray) -> np.ndarray:
@@ -136,16 +140,27 @@ def _local_plane(tree, p, n, q, k: int, smooth=None):
 
 
 def _slab_field(
-    model, p, n, width: float, spacing: float, h: float, lo, shape, smooth=None, reach=REACH
+    model,
+    p,
+    n,
+    width: float,
+    spacing: float,
+    h: float,
+    lo,
+    shape,
+    smooth=None,
+    reach=REACH,
+    tree=None,
 ):
     """The field whose negative region is the cavity round one wall (samples `p`, normals `n`)
     on the grid of spacing `h` from `lo` with `shape` cells, border cells positive; with
     `model` None, the slab alone (a shell's, `shell_slabs`: not held inside any solid).
     `smooth`: weigh the nearest samples' planes by exp(-(distance / smooth)^2) (a smooth
-    field, whose faces' normals vary smoothly) instead of equally."""
+    field, whose faces' normals vary smoothly) instead of equally. `tree`: a `cKDTree` of `p`
+    to reuse."""
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(p)
+    tree = cKDTree(p) if tree is None else tree
     reach = reach * spacing
     k = min(NEIGHBOURS if smooth is None else SHELL_NEIGHBOURS, len(p))
     field = np.full(shape, h)
@@ -227,9 +242,7 @@ def _slabs(model, points, normals, spacing: float, cell: float):
         # graph, whose size does not grow with the density as all pairs within LINK would)
         from ._winding import pieces
 
-        label = pieces(p, spacing)
-        order = np.argsort(label, kind="stable")
-        groups = np.split(order, np.cumsum(np.bincount(label))[:-1])
+        groups = _grouped(pieces(p, spacing))
     else:
         groups = _walls(p, LINK * spacing)
     for idx in groups:
@@ -241,7 +254,8 @@ def _slabs(model, points, normals, spacing: float, cell: float):
         lo = wp.min(axis=0) - reach * spacing - 2 * h
         hi = wp.max(axis=0) + reach * spacing + 2 * h
         shape = tuple(int(s) for s in np.ceil((hi - lo) / h).astype(int) + 1)
-        field = _slab_field(model, wp, wn, width, spacing, h, lo, shape, smooth, reach)
+        tree = cKDTree(wp)
+        field = _slab_field(model, wp, wn, width, spacing, h, lo, shape, smooth, reach, tree)
         if not field.min() < 0:
             continue
         v, f = marched(field, 0.0, h, lo)
@@ -254,9 +268,7 @@ def _slabs(model, points, normals, spacing: float, cell: float):
             # the slab squeezed towards its samples' plane along the plane's normal (a
             # monotone map along each normal: no fold), so that its faces lie SHELL_SQUEEZE of
             # the grid's half-width from the samples
-            _, along, nn = _local_plane(
-                cKDTree(wp), wp, wn, v, min(SHELL_NEIGHBOURS, len(wp)), smooth
-            )
+            _, along, nn = _local_plane(tree, wp, wn, v, min(SHELL_NEIGHBOURS, len(wp)), smooth)
             v = v - ((1.0 - SHELL_SQUEEZE) * along)[:, None] * nn
         verts.append(v)
         faces.append(f + offset)

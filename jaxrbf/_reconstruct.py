@@ -519,7 +519,9 @@ def fit_surface_samples(
                 log(found.summary())
                 open_pieces = (p[found.mask], n[found.mask])
                 rest = ~found.mask
-                if rest.sum() >= SHELL_REST:
+                # every piece was tested or went with the nearest tested piece: the rest is
+                # whole pieces of 100 samples or more, or nothing
+                if rest.any():
                     # the rest is fitted and closed without them (near a shell, w reads
                     # +-1/2: the rest's volume constraints would close across it)
                     p, n, rebuild = p[rest], n[rest], True
@@ -627,10 +629,6 @@ def fit_surface_samples(
         return Fitted(model, p[:0], n[:0], walls, open_pieces)
     return Fitted(model, p, n, walls, open_pieces)
 
-
-#: Open shells (`jaxrbf._winding.shell_samples`) leave the rest of the samples to a closed fit
-#: of their own when at least this many remain.
-SHELL_REST = 100
 
 #: The default meshing grid follows the samples' density: `RESOLUTION_AT` samples along the
 #: longest side for `SPACINGS_AT` median point spacings along it, growing as the

@@ -69,8 +69,11 @@ LINK = 4.0
 #: A wall's grid has at most this many cells along its longest side (coarser cells beyond, and
 #: the slab grows thicker with them).
 MAX_SIDE = 256
-#: A shell's slab grid: cells of SHELL_GRID x the smaller of the point spacing and the meshing
-#: cell, at most SHELL_MAX_SIDE cells along the shell's longest side.
+#: A shell's slab grid: cells of SHELL_GRID point spacings (not the meshing cell: the slab's
+#: faces are put on the samples' local plane after marching, so a finer grid adds faces, not
+#: accuracy: on a sphere with 20% cut away, 10k samples, the meshing cell of 0.4 spacings gave
+#: 816k faces at Chamfer-L1 0.118% / precision 99.86%, one spacing 277k (3.5x faster) at
+#: 0.128% / 99.84%, Poisson 0.42% / 88%), at most SHELL_MAX_SIDE cells along its longest side.
 SHELL_GRID, SHELL_MAX_SIDE = 1.0, 512
 #: A shell's slab follows the plane of its SHELL_NEIGHBOURS nearest samples weighted by
 #: exp(-(d / (SHELL_SMOOTH spacings))^2).
@@ -232,7 +235,7 @@ def _slabs(model, points, normals, spacing: float, cell: float):
     grid, max_side, reach = (
         (SHELL_GRID, SHELL_MAX_SIDE, SHELL_REACH) if shell else (GRID, MAX_SIDE, REACH)
     )
-    fine = grid * min(spacing, float(cell)) if cell > 0 else grid * spacing
+    fine = grid * min(spacing, float(cell)) if cell > 0 and not shell else grid * spacing
     verts, faces, count, offset = [], [], 0, 0
     if len(p) < MIN_SAMPLES or not fine > 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0

@@ -771,6 +771,11 @@ def mesh_fit(
     every = samples
     if shells is not None and len(shells[0]):
         every = np.concatenate([samples.reshape(-1, shells[0].shape[1]), shells[0]])
+    if (len(every) if every.ndim == 2 else 0) < 2:
+        raise ValueError(
+            f"mesh_fit: {len(every)} samples to mesh; it needs the fit's samples (and, when every "
+            "sample lay on an open shell, its shells: pass shells=fitted.shells)"
+        )
     spacing = point_spacing(every)
     if resolution is None:
         resolution = default_resolution(every, spacing)

@@ -430,8 +430,9 @@ def test_a_soup_of_open_pieces_gives_a_surface_near_every_piece_and_no_balloons(
     ]
     p = np.concatenate([a for a, _ in parts])
     n = np.concatenate([b for _, b in parts])
-    model, samples, _ = fit_surface_samples(p, n)  # the default options
-    mesh = mesh_fit(model, samples, resolution=64)  # checks that every piece is accounted for
+    fitted = fit_surface_samples(p, n)  # the default options
+    # checks that every piece is accounted for
+    mesh = mesh_fit(fitted[0], fitted[1], resolution=64, shells=fitted.shells)
     d = _surface_distances(mesh, p)
     diag = np.linalg.norm(np.ptp(p, axis=0))
     # measured: 8.5% of the diagonal at most with volume constraints, 30% without (balloons)
@@ -755,3 +756,10 @@ def test_a_bad_shells_option_is_refused_before_any_work():
 
     with pytest.raises(InputError, match="`shells` must be 'auto', True or False"):
         fit_surface(_sphere(200), _sphere(200), shells="thin")
+
+
+def test_meshing_nothing_says_what_is_missing():
+    # every sample on a shell leaves the fit's samples empty: meshing them without the shells
+    # is refused with a message that names the fix, not a numpy warning from deep inside
+    with pytest.raises(ValueError, match="shells=fitted.shells"):
+        mesh_fit(None, np.zeros((0, 3)))

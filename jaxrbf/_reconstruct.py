@@ -412,12 +412,15 @@ def fit_surface_samples(
     side of the surface are dropped (exact fits only: `jaxrbf._winding.contradicted`).
     "auto" (the default) and True add them to 3-D surfaces, False leaves them out.
     `shells` (with the volume constraints): pieces of the samples that bound no volume (a sheet,
-    a bowl no deeper than a hemisphere, a car body without its underside: their winding number
-    reads little more inside than outside, `jaxrbf._winding.shell_samples`) are left out of the
-    fit and of the samples returned, and come back as the result's `shells`, which `mesh_fit`
-    meshes as thin closed slabs round them, instead of closing them with a lid the input does
-    not have. "auto" (the default): for fits that interpolate; True: also for noisy clouds;
-    False: every piece is closed.
+    a bowl, a vase, a tube, a car body without its underside: openings of about 15% of their
+    area or more, where their winding number reads little more inside than outside,
+    `jaxrbf._winding.shell_samples`) are left out of the fit and of the samples returned, and
+    come back as the result's `shells`, which `mesh_fit` meshes as thin closed slabs round
+    them, instead of closing them with a lid the input does not have. "auto" (the default):
+    so for fits that interpolate; for noisy clouds (scans, whose openings are mostly parts no
+    view saw) only pieces that read nearer a sheet than a closed surface (a terrain, a facade,
+    a single view: `jaxrbf._winding.SHELL_LEVEL_NOISY`). True: the interpolating rule for
+    every fit; False: every piece is closed.
     """
     from ._background import BACKGROUND_SAMPLES, surface_background, wants_background
     from ._fit import METHODS
@@ -511,10 +514,14 @@ def fit_surface_samples(
         if verbose:  # tens of seconds on large or many-holed inputs: say what is under way
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
         spacing, areas, rim = point_spacing(p), None, None
-        if auto_flag(shells, "shells", exact):
-            from ._winding import open_shells
+        if auto_flag(shells, "shells", True):
+            from ._winding import SHELL_LEVEL, SHELL_LEVEL_NOISY, open_shells
 
-            found, areas, rim = open_shells(p, n, spacing, seed=seed)
+            # a noisy cloud's openings are most often parts of a closed object that no view
+            # saw: by default only what reads nearer a sheet than a closed surface is thickened
+            auto = isinstance(shells, str)
+            level = SHELL_LEVEL if exact or not auto else SHELL_LEVEL_NOISY
+            found, areas, rim = open_shells(p, n, spacing, seed=seed, level=level)
             if found.mask.any():
                 log(found.summary())
                 open_pieces = (p[found.mask], n[found.mask])

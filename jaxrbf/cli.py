@@ -106,10 +106,11 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
         "--open-pieces",
         choices=("auto", "thicken", "close"),
         default="auto",
-        help="3-D: pieces of the input that bound no volume (a sheet, a bowl no deeper than a "
-        "hemisphere, a car body without its underside) are meshed as thin closed slabs round "
-        "them (thicken) or closed like holes (close); auto (default): thicken, except for noisy "
-        "clouds (closed)",
+        help="3-D: pieces of the input that bound no volume (a sheet, a bowl, a tube, a car "
+        "body without its underside: openings of about 15%% of their area or more) are meshed "
+        "as thin closed slabs round them (thicken) or closed like holes (close); auto "
+        "(default): thicken, except that in a noisy scan only sheet-like pieces (a terrain, a "
+        "facade, a single view) are thickened and the rest is closed",
     )
     g.add_argument(
         "--denoise",

@@ -482,6 +482,21 @@ def test_an_open_tube_closes_across_its_ends_not_beyond_them(shells):
 
 
 @pytest.mark.slow
+def test_a_noisy_open_sheet_with_the_default_options_is_thickened_within_the_noise():
+    # bare points of a noisy terrain-like sheet (1% of its size): normals estimated, noise seen,
+    # and the sheet (mid-value about 0) kept as a slab, not closed into a lumpy solid
+    p, _ = _sheet_samples(3000, seed=2)
+    noisy = p + 0.01 * np.random.default_rng(4).standard_normal(p.shape)
+    fitted = fit_surface_samples(noisy)
+    assert len(fitted.shells[0]) > 0.99 * len(p) and len(fitted[1]) == 0  # strays removed
+    mesh = mesh_fit(fitted[0], fitted[1], resolution=64, shells=fitted.shells)
+    v = mesh.vertices
+    height = v[:, 2] - 0.2 * np.sin(2 * v[:, 0])
+    assert np.abs(height).max() < 0.06 and np.abs(height).mean() < 0.01
+    assert np.abs(v[:, :2]).max() < np.abs(noisy[:, :2]).max() + 0.05  # no rim beyond the edge
+
+
+@pytest.mark.slow
 def test_a_noisy_sphere_with_the_default_options_gives_a_mesh_within_the_noise():
     rng = np.random.default_rng(3)
     p = _sphere(3000, seed=3) * (1 + 0.01 * rng.standard_normal((3000, 1)))  # 1% of the radius
@@ -688,8 +703,8 @@ def _plate(n, thickness, seed=0):
 def test_open_shells_are_pieces_that_bound_no_volume(turn):
     from jaxrbf.objectives import point_spacing
 
-    def found(p, n):
-        return open_shells(p, turn * n, point_spacing(p))[0]
+    def found(p, n, level=winding.SHELL_LEVEL):
+        return open_shells(p, turn * n, point_spacing(p), level=level)[0]
 
     sheet, sheet_n = _sheet_samples(3000)
     r = found(sheet, sheet_n)
@@ -700,6 +715,9 @@ def test_open_shells_are_pieces_that_bound_no_volume(turn):
     # (0.46), a thin closed plate whose readings 4 spacings off both fall outside it (a jump
     # of 0, not 1)
     assert found(_hemisphere(3000), _hemisphere(3000)).mask.all()
+    # a noisy scan's level: a sheet still, not a hemisphere (a closed object half seen)
+    assert found(sheet, sheet_n, winding.SHELL_LEVEL_NOISY).mask.all()
+    assert not found(_hemisphere(3000), _hemisphere(3000), winding.SHELL_LEVEL_NOISY).mask.any()
     ball = _sphere(8000)
     quarter, most = ball[ball[:, 2] > -0.5][:3000], ball[ball[:, 2] > -0.9][:3000]
     assert found(quarter, quarter).mask.all()

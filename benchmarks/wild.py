@@ -57,6 +57,13 @@ skipped, and the skipped ones are listed at the end):
    methods get the same points and normals.
 3. the two real bare clouds `scanned-leg.xyz` (`leg`) and `anchor.xyz` (`anchor`): no normals
    and no reference surface. jaxrbf gets the file; Open3D as in 2.
+4. surfaces made here (kind "made", no file needed), of kinds the shared meshes lack, sampled as
+   in 1 with their true normals: `cut-sphere-10k`, a sphere with CUT_AWAY = 20% of its area cut
+   away (a bowl, a vase, a helmet: one opening a fifth of the surface), and
+   `noisy-terrain-20k`, an open height field (TERRAIN_HILLS seeded Gaussian hills and dips on a
+   ripple, the kind of an aerial or terrestrial terrain scan) whose samples are moved by Gaussian
+   noise of TERRAIN_NOISE = 0.25% of the diagonal (3-D, so jaxrbf sees a noisy cloud). The
+   reference is the made mesh.
 
 Figures, per input and method:
 - with a reference (1, 2): wall time (s); Chamfer-L1 (% of the reference's bounding-box
@@ -161,7 +168,8 @@ class Input:
     kind: str  # "mesh": sampled with true normals; "scan": virtual scanner ("nscan": with the
     # scanner's normals); "cloud": a real scan
     file: str
-    points: int = 0  # surface samples, for kinds "mesh" and "holed"
+    points: int = 0  # surface samples, for kinds "mesh", "holed" and "made"
+    noise: float = 0.0  # kind "made": Gaussian noise on the samples, fraction of the diagonal
 
     def describe(self) -> str:
         if self.kind == "mesh":
@@ -172,6 +180,9 @@ class Input:
             return f"virtual range scan of {self.file} ({SCAN_VIEWS} views), no normals"
         if self.kind == "nscan":
             return f"virtual range scan of {self.file} ({SCAN_VIEWS} views), scanner normals"
+        if self.kind == "made":
+            noise = f", {self.noise:.2%} noise" if self.noise else ""
+            return f"{self.points:,} samples of a made {self.file} with true normals{noise}"
         return f"{self.file} as is, no normals, no reference"
 
 
@@ -203,8 +214,18 @@ INPUTS = (
     Input("nscan-spot", "nscan", "spot.obj"),
     Input("leg", "cloud", "scanned-leg.xyz"),
     Input("anchor", "cloud", "anchor.xyz"),
+    # kinds the shared meshes lack, made here: one large opening; an open, noisy terrain
+    Input("cut-sphere-10k", "made", "cut-sphere", 10_000),
+    Input("noisy-terrain-20k", "made", "terrain", 20_000, noise=0.0025),
 )
 BY_NAME = {i.name: i for i in INPUTS}
+CUT_AWAY = 0.2  # the cut sphere's opening, share of its area
+TERRAIN_HILLS, TERRAIN_NOISE = 8, 0.0025
+
+
+def present(inp: Input) -> bool:
+    """Whether the input can run here: made ones always, the others when their file is there."""
+    return inp.kind == "made" or (DATA_DIR / inp.file).is_file()
 
 
 # --- inputs -----------------------------------------------------------------------------------
@@ -315,6 +336,40 @@ def cut_holes(mesh, count: int, seed: int):
     return io.Mesh(v, f[keep])
 
 
+def made_mesh(name: str, seed: int):
+    """The made surfaces (kind "made"): "cut-sphere", a unit sphere (icosphere, 20,480 faces)
+    turned by a seeded rotation, without the faces whose centroids lie in its top CUT_AWAY of
+    area; "terrain", a 160 x 160 height field over the unit square with TERRAIN_HILLS seeded
+    Gaussian hills and dips (heights -0.12 to 0.2, widths 0.06 to 0.2) on a ripple of 0.02."""
+    import trimesh
+
+    from jaxrbf import io
+
+    rng = np.random.default_rng(seed + 11)
+    if name == "cut-sphere":
+        s = trimesh.creation.icosphere(5, 1.0)
+        axis = _unit(rng.normal(size=3))
+        s.apply_transform(trimesh.transformations.rotation_matrix(rng.uniform(0, np.pi), axis))
+        keep = s.triangles_center[:, 2] < 1 - 2 * CUT_AWAY
+        return io.Mesh(np.asarray(s.vertices), np.asarray(s.faces)[keep])
+    if name == "terrain":
+        k = 160
+        u, v = np.meshgrid(np.linspace(0, 1, k), np.linspace(0, 1, k), indexing="ij")
+        c = rng.uniform(0.1, 0.9, (TERRAIN_HILLS, 2))
+        h = rng.uniform(-0.12, 0.2, TERRAIN_HILLS)
+        w = rng.uniform(0.06, 0.2, TERRAIN_HILLS)
+        z = 0.02 * np.sin(9 * u) * np.cos(7 * v)
+        for ci, hi, wi in zip(c, h, w, strict=True):
+            z = z + hi * np.exp(-((u - ci[0]) ** 2 + (v - ci[1]) ** 2) / (2 * wi * wi))
+        idx = np.arange(k * k).reshape(k, k)
+        a, b, cc, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+        faces = np.concatenate(
+            [np.stack([a, b, cc], -1).reshape(-1, 3), np.stack([a, cc, d], -1).reshape(-1, 3)]
+        )
+        return io.Mesh(np.stack([u, v, z], -1).reshape(-1, 3), faces)
+    raise ValueError(f"no made surface {name!r}")
+
+
 def prepare(inp: Input, workdir: Path, seed: int):
     """(file for jaxrbf, points, normals or None, reference mesh or None, true surface or None,
     notes) for `inp`. The true surface is the closed mesh the input was made from where it is
@@ -325,6 +380,16 @@ def prepare(inp: Input, workdir: Path, seed: int):
     path = DATA_DIR / inp.file
     if inp.kind == "cloud":
         return path, io.read_points(path).points, None, None, None, {}
+    if inp.kind == "made":
+        ref = made_mesh(inp.file, seed)
+        points, normals = metrics.sample_surface(ref, inp.points, seed=seed)
+        if inp.noise:
+            diag = float(np.linalg.norm(np.ptp(points, axis=0)))
+            rng = np.random.default_rng(seed + 13)
+            points = points + rng.normal(0.0, inp.noise * diag / np.sqrt(3), points.shape)
+        out = workdir / f"{inp.name}.ply"
+        io.write_points(out, points, normals)
+        return out, points, normals, ref, None, {}
     ref = truth = io.read_mesh(path)
     if inp.kind == "holed":
         ref = cut_holes(truth, HOLES, seed + 7)
@@ -656,8 +721,8 @@ def revision() -> str:
 
 def list_inputs() -> None:
     for inp in INPUTS:
-        present = "" if (DATA_DIR / inp.file).is_file() else "   [missing: not in DATA_DIR]"
-        print(f"{inp.name:16s} {inp.describe()}{present}")
+        here = "" if present(inp) else "   [missing: not in DATA_DIR]"
+        print(f"{inp.name:18s} {inp.describe()}{here}")
     print(f"(data: {DATA_DIR})")
 
 
@@ -733,9 +798,9 @@ def main(argv=None) -> int:
     )
 
     names = list(dict.fromkeys(args.inputs))
-    present = {n: (DATA_DIR / BY_NAME[n].file).is_file() for n in names}
-    skipped = [(n, f"{BY_NAME[n].file} missing") for n in names if not present[n]]
-    todo = [BY_NAME[n] for n in names if present[n]]
+    here = {n: present(BY_NAME[n]) for n in names}
+    skipped = [(n, f"{BY_NAME[n].file} missing") for n in names if not here[n]]
+    todo = [BY_NAME[n] for n in names if here[n]]
     for name, why in skipped:
         print(f"skipping {name}: {why} (looked in {DATA_DIR})", flush=True)
 

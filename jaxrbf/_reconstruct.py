@@ -519,9 +519,10 @@ def fit_surface_samples(
 
             # a noisy cloud's openings are most often parts of a closed object that no view
             # saw: by default only what reads nearer a sheet than a closed surface is thickened
-            auto = isinstance(shells, str)
-            level = SHELL_LEVEL if exact or not auto else SHELL_LEVEL_NOISY
-            found, areas, rim = open_shells(p, n, spacing, seed=seed, level=level)
+            # (the rims' openings too: a noisy cloud's boundary test also fires on gaps)
+            whole = exact or not isinstance(shells, str)  # the interpolating fit's rule
+            level = SHELL_LEVEL if whole else SHELL_LEVEL_NOISY
+            found, areas, rim = open_shells(p, n, spacing, seed=seed, level=level, rims=whole)
             if found.mask.any():
                 log(found.summary())
                 open_pieces = (p[found.mask], n[found.mask])

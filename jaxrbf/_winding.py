@@ -130,27 +130,36 @@ LEVEL_SAMPLES = 20_000
 LEVEL_NEIGHBOURS = 128
 LEVEL_CLIP = (0.5, 0.7)
 #: Open shells (`shell_samples`): pieces (samples linked by their SHELL_LINK_K nearest within
-#: SHELL_LINK spacings) of at least SHELL_MIN_SAMPLES samples whose median mid-value of w,
-#: read JUMP_SPACINGS along and against the normals of up to SHELL_TESTED of them, is below
-#: SHELL_LEVEL in magnitude, with a median jump across them above SHELL_JUMP (a thin closed
-#: plate, both of whose readings fall outside it, jumps by about 0, where a sheet jumps by 1).
+#: SHELL_LINK spacings) of at least SHELL_MIN_SAMPLES samples, read JUMP_SPACINGS along and
+#: against the normals of up to SHELL_TESTED of them, whose median jump across them is above
+#: SHELL_JUMP (a thin closed plate, both of whose readings fall outside it, jumps by about 0,
+#: where a sheet jumps by 1) and whose median mid-value of w is below SHELL_LEVEL in magnitude,
+#: or below SHELL_OPENING_LEVEL with openings that span SHELL_OPENING of the piece's area or
+#: more (`openings`: the rims' convex hulls in their planes, against the samples' areas).
 #: The mid-value grows with how much of a closed surface a piece is: a flat sheet 0, a
 #: 30-degree cap 0.11, an open hemisphere 0.31-0.33 (1k-100k samples), a sphere with 40% of
-#: its area cut away 0.35, 30% 0.39, 20% 0.42, 10% 0.45, 12 holes of 3-6% of the diagonal cut
-#: into a closed mesh 0.44, a closed surface 1/2 (0.47-0.50 on the test meshes, 1k-100k
-#: samples). SHELL_LEVEL = 0.43: a piece whose openings would take about 15% of its area or
-#: more to close is kept as it is, thickened; one with smaller holes is closed across them.
+#: its area cut away 0.35, 30% 0.39-0.40, 20% 0.42-0.43, 10% 0.45-0.47, a closed surface 1/2
+#: (0.47-0.50 on the test meshes); it drifts up by about 0.02 from 10k to 100k samples, which
+#: puts a level between a 10% and a 20% opening at the mercy of the sample count. The rims'
+#: hulls measure the opening itself, to within 0.01 from 1k to 100k samples (0.21 / 0.20 of
+#: the area for 20% cut away, 0.11 / 0.10 for 10%), but cannot tell an opening that another
+#: piece covers (the teapot's lid over its body: hulls 0.11, mid-value 0.48-0.54), which the
+#: mid-value does. SHELL_LEVEL = 1/3: no more than half a closed surface is open whatever its
+#: rims say (a car body whose face normals disagree has ragged rims). SHELL_OPENING = 0.15,
+#: SHELL_OPENING_LEVEL = 0.46: an opening of 15% of the piece or more, not covered, is kept
+#: open, thickened; smaller holes are closed across (the holed spot's 12 holes: 0.08, 0.44).
 #: Closing invents a lid as large as the opening, all of it far from a surface that is open:
 #: measured against their input (10k samples with true normals, Chamfer-L1 / NC / precision
-#: at 0.5%), a sphere with 20% cut away closed came out at 0.78% / 0.964 / 84% and 30% cut
-#: away 0.74%, a cap of 115 degrees 1.15% / 0.932 / 78%, where Open3D's Poisson, which leaves
-#: such an opening open (its surface runs on to its box), gives 0.42% / 0.997 / 88%, 0.74% /
-#: 0.992 / 80% and 0.74% / 0.994 / 81%; thickened they measure 0.12% / 0.999 / 99.9% each.
-#: A sphere with 10% cut away is still closed (0.38% / 0.990 / 91%, Poisson's stub 0.22% /
-#: 0.996 / 94%): a hole of that size is one a user expects closed.
+#: at 0.5%), a sphere with 20% cut away closed came out at 0.78% / 0.964 / 84% and a cap of
+#: 115 degrees 1.15% / 0.932 / 78%, where Open3D's Poisson, which leaves such an opening open
+#: (its surface runs on to its box), gives 0.42% / 0.997 / 88% and 0.74% / 0.994 / 81%;
+#: thickened they measure 0.13% / 0.999 / 99.8-99.9%. A sphere with 10% cut away is still
+#: closed (0.38% / 0.990 / 91%, Poisson's stub 0.22% / 0.996 / 94%): a hole of that size is
+#: one a user expects closed.
 SHELL_LINK, SHELL_LINK_K = 4.0, 12
 SHELL_MIN_SAMPLES, SHELL_TESTED = 100, 256
-SHELL_LEVEL, SHELL_JUMP = 0.43, 0.5
+SHELL_LEVEL, SHELL_JUMP = 1 / 3, 0.5
+SHELL_OPENING, SHELL_OPENING_LEVEL = 0.15, 0.46
 #: The level for a noisy cloud (a scan, which the fit approximates): there an opening is most
 #: often a part of a closed object that no view saw (a sole, an underside, a pocket), which the
 #: user wants closed, and noise lifts the mid-value by about 0.015 (20k samples with 0.25% of
@@ -666,16 +675,20 @@ def shell_samples(
     tree: cKDTree | None = None,
     seed=0,
     level: float = SHELL_LEVEL,
+    rim: np.ndarray | None = None,
+    areas: np.ndarray | None = None,
 ) -> Shells:
     """Which samples lie on open shells: pieces (`pieces`) that bound no volume, such as a
     sheet, a leaf, a shallow cap or an artist's car body without its underside. Across a
     closed surface w reads about 1 just inside and 0 just outside (mid-value 1/2); across an
     open sheet +1/2 and -1/2 (mid-value 0). A piece whose median mid-value, `JUMP_SPACINGS`
     spacings along and against the normals (where the sum over discrete samples is smooth), is
-    below `level` (`SHELL_LEVEL`) in magnitude (normals turned into the solid turn its sign) has
-    openings of about 15% of its area or more: closing it (a lid over a bowl or a vase, a lumpy
-    cap across a sheet that w never puts inside) invents a large surface that the input does
-    not have. Such a piece is better kept as it is, thickened (`jaxrbf._cavities.shell_slabs`).
+    below `level` (`SHELL_LEVEL`) in magnitude (normals turned into the solid turn its sign) is
+    no more than half of a closed surface; given the samples' `rim` (`boundary_mask`) and
+    `areas`, so is one below `SHELL_OPENING_LEVEL` whose openings span `SHELL_OPENING` of its
+    area or more (`openings`). Closing such a piece (a lid over a bowl or a vase, a lumpy cap
+    across a sheet that w never puts inside) invents a large surface that the input does not
+    have: it is better kept as it is, thickened (`jaxrbf._cavities.shell_slabs`).
 
     Smaller pieces go with the nearest piece tested. Cost: 2 x `SHELL_TESTED` evaluations of w
     per piece of `SHELL_MIN_SAMPLES` or more."""
@@ -700,10 +713,15 @@ def shell_samples(
     w_out, w_in = w[: len(idx)], w[len(idx) :]
     mid, jump = (w_in + w_out) / 2, w_in - w_out
     levels, ends = [], np.cumsum([len(k) for k in picks])
+    wide = None
+    if rim is not None and areas is not None:
+        wide = openings(p, label, rim, areas, spacing) >= SHELL_OPENING
     for g, sel in zip(big, np.split(np.arange(len(idx)), ends[:-1]), strict=True):
         # normals turned into the solid turn w and the side read: the jump stays, the
         # mid-value changes sign (a closed piece reads -1/2)
-        if abs(np.median(mid[sel])) < level and np.median(jump[sel]) > SHELL_JUMP:
+        m = abs(np.median(mid[sel]))
+        open_ = m < level or (wide is not None and wide[g] and m < SHELL_OPENING_LEVEL)
+        if open_ and np.median(jump[sel]) > SHELL_JUMP:
             mask[label == g] = True
             levels.append(mid[sel])
     small = count[label] < SHELL_MIN_SAMPLES
@@ -717,10 +735,33 @@ def shell_samples(
     return Shells(mask, len(big), len(levels), found)
 
 
-def open_shells(points, normals, spacing: float, seed: int = 0, level: float = SHELL_LEVEL):
-    """`shell_samples` (at `level`) of the samples, with the winding tree built for it, the
-    samples' `calibrated_areas` and their `boundary_mask`, as `volume_constraints` computes them (pass
-    them on): `(shells, areas, rim)`."""
+def openings(points, label, rim, areas, spacing: float) -> np.ndarray:
+    """Per piece (`label`), the share of its area (the sum of the samples' `areas`) that its
+    openings span: each rim (linked `rim` samples, `jaxrbf._holes`) counts with the area of its
+    convex hull in its own plane, for the piece that holds most of its samples."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    from ._holes import _rims
+
+    spanned = np.zeros(int(label.max()) + 1)
+    for loop in _rims(points, rim, spacing):
+        q = points[loop] - points[loop].mean(axis=0)
+        plane = np.linalg.svd(q, full_matrices=False)[2][:2]
+        try:
+            hull = ConvexHull(q @ plane.T).volume  # a 2-D hull's volume is its area
+        except QhullError:  # a rim on a line spans nothing
+            continue
+        spanned[np.bincount(label[loop]).argmax()] += hull
+    return spanned / np.maximum(np.bincount(label, weights=areas), 1e-300)
+
+
+def open_shells(
+    points, normals, spacing: float, seed: int = 0, level: float = SHELL_LEVEL, rims=True
+):
+    """`shell_samples` (at `level`, with the rims' `openings` unless `rims` is False) of the
+    samples, with the winding tree built for it, the samples' `calibrated_areas` and their
+    `boundary_mask`, as `volume_constraints` computes them (pass them on): `(shells, areas,
+    rim)`."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -728,7 +769,17 @@ def open_shells(points, normals, spacing: float, seed: int = 0, level: float = S
     rim = boundary_mask(p, nrm, tree=tree)
     areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, areas)
-    found = shell_samples(p, nrm, spacing, wtree, tree, seed=seed, level=level)
+    found = shell_samples(
+        p,
+        nrm,
+        spacing,
+        wtree,
+        tree,
+        seed=seed,
+        level=level,
+        rim=rim if rims else None,
+        areas=areas,
+    )
     return found, areas, rim
 
 

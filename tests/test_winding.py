@@ -703,21 +703,23 @@ def _plate(n, thickness, seed=0):
 def test_open_shells_are_pieces_that_bound_no_volume(turn):
     from jaxrbf.objectives import point_spacing
 
-    def found(p, n, level=winding.SHELL_LEVEL):
-        return open_shells(p, turn * n, point_spacing(p), level=level)[0]
+    def found(p, n, level=winding.SHELL_LEVEL, rims=True):
+        return open_shells(p, turn * n, point_spacing(p), level=level, rims=rims)[0]
 
     sheet, sheet_n = _sheet_samples(3000)
     r = found(sheet, sheet_n)
     assert r.mask.all() and r.shells == 1 and abs(r.level) < 0.1
     assert "1 open piece" in r.summary()
     # an open hemisphere (mid-value 0.31-0.33) and a sphere with a quarter of it cut away
-    # (0.40) are shells; closed or nearly closed pieces are not: a sphere, one with 5% cut away
-    # (0.46), a thin closed plate whose readings 4 spacings off both fall outside it (a jump
-    # of 0, not 1)
+    # (0.40, its rim's hull a quarter of its area) are shells; closed or nearly closed pieces
+    # are not: a sphere, one with 5% cut away (0.46), a thin closed plate whose readings 4
+    # spacings off both fall outside it (a jump of 0, not 1)
     assert found(_hemisphere(3000), _hemisphere(3000)).mask.all()
-    # a noisy scan's level: a sheet still, not a hemisphere (a closed object half seen)
-    assert found(sheet, sheet_n, winding.SHELL_LEVEL_NOISY).mask.all()
-    assert not found(_hemisphere(3000), _hemisphere(3000), winding.SHELL_LEVEL_NOISY).mask.any()
+    # a noisy scan's rule (its level, no rims): a sheet still, not a hemisphere (a closed
+    # object half seen)
+    assert found(sheet, sheet_n, winding.SHELL_LEVEL_NOISY, rims=False).mask.all()
+    half = _hemisphere(3000)
+    assert not found(half, half, winding.SHELL_LEVEL_NOISY, rims=False).mask.any()
     ball = _sphere(8000)
     quarter, most = ball[ball[:, 2] > -0.5][:3000], ball[ball[:, 2] > -0.9][:3000]
     assert found(quarter, quarter).mask.all()
@@ -788,3 +790,20 @@ def test_meshing_nothing_says_what_is_missing():
     # is refused with a message that names the fix, not a numpy warning from deep inside
     with pytest.raises(ValueError, match="shells=fitted.shells"):
         mesh_fit(None, np.zeros((0, 3)))
+
+
+@pytest.mark.parametrize("n", [2000, 20000])
+def test_an_opening_of_a_fifth_is_kept_open_at_any_density(n):
+    # the mid-value of w drifts up with the sample count (a sphere with 20% cut away: 0.42 at
+    # 10k, 0.43 at 100k); the rim's hull measures the opening itself: a fifth of the area open
+    # is thickened at every density, a twelfth is closed
+    from jaxrbf._winding import openings, pieces
+    from jaxrbf.objectives import point_spacing
+
+    ball = _sphere(2 * n, seed=1)
+    fifth, twelfth = ball[ball[:, 2] < 0.6][:n], ball[ball[:, 2] < 5 / 6][:n]
+    for p, share, kept in ((fifth, 0.2, True), (twelfth, 1 / 12, False)):
+        found, areas, rim = open_shells(p, p, point_spacing(p))
+        assert found.mask.all() == kept and found.mask.any() == kept
+        label = pieces(p, point_spacing(p))
+        assert abs(openings(p, label, rim, areas, point_spacing(p))[0] - share) < 0.03

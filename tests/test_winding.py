@@ -807,3 +807,19 @@ def test_an_opening_of_a_fifth_is_kept_open_at_any_density(n):
         assert found.mask.all() == kept and found.mask.any() == kept
         label = pieces(p, point_spacing(p))
         assert abs(openings(p, label, rim, areas, point_spacing(p))[0] - share) < 0.03
+
+
+def test_small_open_pieces_beside_a_closed_one_are_read_on_their_own():
+    # four open discs of 80 samples beside a closed sphere of 3,000: each is read and
+    # thickened, not handed the sphere's side (closed into a balloon) as a sampling gap is
+    from jaxrbf.objectives import point_spacing
+
+    rng = np.random.default_rng(3)
+    parts, normals = [_sphere(3000, seed=3)], [_sphere(3000, seed=3)]
+    for c in ([1.6, 0, 0], [-1.6, 0, 0], [0, 1.6, 0], [0, 0, -1.6]):
+        p, n = _disc(rng, np.array(c), np.array(c) + [0.3, 0.2, 0.1], 0.3, 80)
+        parts.append(p)
+        normals.append(n)
+    p, n = np.concatenate(parts), np.concatenate(normals)
+    found = open_shells(p, n, point_spacing(p))[0]
+    assert found.mask[3000:].all() and not found.mask[:3000].any()

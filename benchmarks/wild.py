@@ -160,6 +160,8 @@ THRESHOLD = 0.005  # precision and recall, fraction of the reference's diagonal
 FAR = 0.01  # far share, fraction of the input's diagonal
 ONE_SIDED_SAMPLES = 500_000
 HOLES = 12  # holes cut out of a closed mesh (kind "holed")
+CUT_AWAY = 0.2  # the cut sphere's opening, share of its area (kind "made")
+TERRAIN_HILLS, TERRAIN_NOISE = 8, 0.0025  # the made terrain's hills and noise (of the diagonal)
 
 
 @dataclass(frozen=True)
@@ -216,11 +218,9 @@ INPUTS = (
     Input("anchor", "cloud", "anchor.xyz"),
     # kinds the shared meshes lack, made here: one large opening; an open, noisy terrain
     Input("cut-sphere-10k", "made", "cut-sphere", 10_000),
-    Input("noisy-terrain-20k", "made", "terrain", 20_000, noise=0.0025),
+    Input("noisy-terrain-20k", "made", "terrain", 20_000, noise=TERRAIN_NOISE),
 )
 BY_NAME = {i.name: i for i in INPUTS}
-CUT_AWAY = 0.2  # the cut sphere's opening, share of its area
-TERRAIN_HILLS, TERRAIN_NOISE = 8, 0.0025
 
 
 def present(inp: Input) -> bool:

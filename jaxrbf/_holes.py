@@ -143,16 +143,19 @@ def _boundary(points, normals, k: int, gap: float, tree=None):
     return out, nearest
 
 
-def _rims(p: np.ndarray, boundary: np.ndarray, spacing: float) -> list[np.ndarray]:
-    """Groups of linked boundary points (indices into `p`), each of at least `MIN_LOOP`."""
+def rim_groups(
+    p: np.ndarray, boundary: np.ndarray, spacing: float, smallest: int = MIN_LOOP
+) -> list[np.ndarray]:
+    """Groups of boundary points linked within `LINK_SPACINGS` spacings (indices into `p`),
+    each of at least `smallest`."""
     from ._prepare import linked_groups
 
     b = np.flatnonzero(boundary)
-    if len(b) < MIN_LOOP:
+    if len(b) < smallest:
         return []
     _, label = linked_groups(p[b], LINK_SPACINGS * spacing)
     sizes = np.bincount(label)
-    return [b[label == lab] for lab in np.flatnonzero(sizes >= MIN_LOOP)]
+    return [b[label == lab] for lab in np.flatnonzero(sizes >= smallest)]
 
 
 def _membrane(uv: np.ndarray, z: np.ndarray, grid: np.ndarray):
@@ -267,7 +270,7 @@ def fill_holes(points, normals):
     tree = cKDTree(p)
     boundary, nearest = _boundary(p, n, K, GAP, tree)
     spacing = float(np.median(nearest))
-    rims = _rims(p, boundary, spacing)
+    rims = rim_groups(p, boundary, spacing)
     caps, skipped = [], []
     for rim in rims:
         got = _cap(p, n, rim, spacing, tree)

@@ -515,20 +515,17 @@ def fit_surface_samples(
             log(f"inside/outside: the winding number of {len(p):,} samples ...")
         spacing, areas, rim = point_spacing(p), None, None
         if auto_flag(shells, "shells", True):
-            from ._winding import SHELL_LEVEL, SHELL_LEVEL_NOISY, open_shells
+            from ._winding import open_shells
 
-            # a noisy cloud's openings are most often parts of a closed object that no view
-            # saw: by default only what reads nearer a sheet than a closed surface is thickened
-            # (the rims' openings too: a noisy cloud's boundary test also fires on gaps)
-            whole = exact or not isinstance(shells, str)  # the interpolating fit's rule
-            level = SHELL_LEVEL if whole else SHELL_LEVEL_NOISY
-            found, areas, rim = open_shells(p, n, spacing, seed=seed, level=level, rims=whole)
+            # by default a noisy cloud is held to the noisy rule (True: the interpolating one)
+            noisy = not exact and isinstance(shells, str)
+            found, areas, rim = open_shells(p, n, spacing, seed=seed, noisy=noisy)
             if found.mask.any():
                 log(found.summary())
                 open_pieces = (p[found.mask], n[found.mask])
                 rest = ~found.mask
-                # every piece was tested or went with the nearest tested piece: the rest is
-                # whole pieces of 100 samples or more, or nothing
+                # every piece was judged or went with the nearest judged piece: the rest is
+                # whole pieces, or nothing
                 if rest.any():
                     # the rest is fitted and closed without them (near a shell, w reads
                     # +-1/2: the rest's volume constraints would close across it)

@@ -56,7 +56,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._errors import InputError
-from ._holes import boundary_mask
+from ._holes import boundary_mask, rim_groups
 from ._project import _newton_step
 from ._schwarz import _kd_leaves
 from .objectives import point_spacing
@@ -169,9 +169,9 @@ SHELL_MIN_SAMPLES, SHELL_TESTED = 100, 256
 SHELL_SMALL = 30
 SHELL_LEVEL, SHELL_JUMP = 1 / 3, 0.5
 SHELL_OPENING, SHELL_OPENING_LEVEL = 0.15, 0.46
-#: `openings`' rims: boundary samples linked within RIM_LINK spacings, RIM_MIN or more (a short
-#: tube of 100 samples has 5-10 at each end).
-RIM_LINK, RIM_MIN = 12.0, 5
+#: `openings`' rims: groups of RIM_MIN boundary samples or more (`rim_groups`; a short tube of
+#: 100 samples has 5-10 at each end).
+RIM_MIN = 5
 #: The level for a noisy cloud (a scan, which the fit approximates): there an opening is most
 #: often a part of a closed object that no view saw (a sole, an underside, a pocket), which the
 #: user wants closed, and noise lifts the mid-value by about 0.015 (20k samples with 0.25% of
@@ -737,15 +737,15 @@ def shell_samples(
         open_ = m < level or (wide is not None and wide[g] and m < SHELL_OPENING_LEVEL)
         # a piece a few spacings across subtends little from JUMP_SPACINGS off: its jump
         # reads about 1/2 where a large sheet's reads 1 (a thin closed plate's still 0)
-        small = count[g] < SHELL_MIN_SAMPLES
-        if np.median(jump[sel]) > (SHELL_JUMP / 2 if small else SHELL_JUMP):
+        few = count[g] < SHELL_MIN_SAMPLES
+        if np.median(jump[sel]) > (SHELL_JUMP / 2 if few else SHELL_JUMP):
             if open_:
                 mask[label == g] = True
                 levels.append(mid[sel])
-        elif small:  # unclear: as if unread
+        elif few:  # unclear: as if unread
             undecided[g] = True
     small = undecided[label]
-    if levels and small.any() and not small.all():
+    if levels and small.any():
         # a few samples off on their own (random sampling leaves gaps) go with the nearest
         # piece that was read
         read = np.flatnonzero(~small)
@@ -757,20 +757,13 @@ def shell_samples(
 
 def openings(points, label, rim, areas, spacing: float) -> np.ndarray:
     """Per piece (`label`), the share of its area (the sum of the samples' `areas`) that its
-    openings span: each rim (`rim` samples linked within `RIM_LINK` spacings, `RIM_MIN` or more)
-    counts with the area of its convex hull in its own plane, for the piece that holds most of
-    its samples."""
+    openings span: each rim (`rim_groups` of the `rim` samples, `RIM_MIN` or more) counts with
+    the area of its convex hull in its own plane, for the piece that holds most of its
+    samples."""
     from scipy.spatial import ConvexHull, QhullError
 
-    from ._prepare import linked_groups
-
     spanned = np.zeros(int(label.max()) + 1)
-    edge = np.flatnonzero(rim)
-    if len(edge) < RIM_MIN:
-        return spanned
-    group = linked_groups(points[edge], RIM_LINK * spacing)[1]
-    for g in np.flatnonzero(np.bincount(group) >= RIM_MIN):
-        loop = edge[group == g]
+    for loop in rim_groups(points, rim, spacing, smallest=RIM_MIN):
         q = points[loop] - points[loop].mean(axis=0)
         plane = np.linalg.svd(q, full_matrices=False)[2][:2]
         try:
@@ -781,13 +774,12 @@ def openings(points, label, rim, areas, spacing: float) -> np.ndarray:
     return spanned / np.maximum(np.bincount(label, weights=areas), 1e-300)
 
 
-def open_shells(
-    points, normals, spacing: float, seed: int = 0, level: float = SHELL_LEVEL, rims=True
-):
-    """`shell_samples` (at `level`, with the rims' `openings` unless `rims` is False) of the
-    samples, with the winding tree built for it, the samples' `calibrated_areas` and their
-    `boundary_mask`, as `volume_constraints` computes them (pass them on): `(shells, areas,
-    rim)`."""
+def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = False):
+    """`shell_samples` of the samples, with the winding tree built for it, the samples'
+    `calibrated_areas` and their `boundary_mask`, as `volume_constraints` computes them (pass
+    them on): `(shells, areas, rim)`. `noisy` (a cloud the fit approximates, a scan): at
+    `SHELL_LEVEL_NOISY`, without the rims' `openings` (there the boundary test also fires on
+    gaps, and an opening is most often a part of a closed object that no view saw)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -802,8 +794,8 @@ def open_shells(
         wtree,
         tree,
         seed=seed,
-        level=level,
-        rim=rim if rims else None,
+        level=SHELL_LEVEL_NOISY if noisy else SHELL_LEVEL,
+        rim=None if noisy else rim,
         areas=areas,
     )
     return found, areas, rim

@@ -28,6 +28,7 @@ from jaxrbf._winding import (
     winding_number,
     winding_tree,
 )
+from jaxrbf.objectives import point_spacing
 
 
 def _sphere(n, seed=0):
@@ -701,10 +702,8 @@ def _plate(n, thickness, seed=0):
 
 @pytest.mark.parametrize("turn", [1.0, -1.0])
 def test_open_shells_are_pieces_that_bound_no_volume(turn):
-    from jaxrbf.objectives import point_spacing
-
-    def found(p, n, level=winding.SHELL_LEVEL, rims=True):
-        return open_shells(p, turn * n, point_spacing(p), level=level, rims=rims)[0]
+    def found(p, n, noisy=False):
+        return open_shells(p, turn * n, point_spacing(p), noisy=noisy)[0]
 
     sheet, sheet_n = _sheet_samples(3000)
     r = found(sheet, sheet_n)
@@ -717,9 +716,9 @@ def test_open_shells_are_pieces_that_bound_no_volume(turn):
     assert found(_hemisphere(3000), _hemisphere(3000)).mask.all()
     # a noisy scan's rule (its level, no rims): a sheet still, not a hemisphere (a closed
     # object half seen)
-    assert found(sheet, sheet_n, winding.SHELL_LEVEL_NOISY, rims=False).mask.all()
+    assert found(sheet, sheet_n, noisy=True).mask.all()
     half = _hemisphere(3000)
-    assert not found(half, half, winding.SHELL_LEVEL_NOISY, rims=False).mask.any()
+    assert not found(half, half, noisy=True).mask.any()
     ball = _sphere(8000)
     quarter, most = ball[ball[:, 2] > -0.5][:3000], ball[ball[:, 2] > -0.9][:3000]
     assert found(quarter, quarter).mask.all()
@@ -737,7 +736,6 @@ def test_open_shells_are_pieces_that_bound_no_volume(turn):
 def test_a_sheet_beside_a_closed_piece_is_kept_thin_and_the_piece_closed(tmp_path):
     from jaxrbf import is_watertight
     from jaxrbf._reconstruct import reconstruct
-    from jaxrbf.objectives import point_spacing
 
     sheet, sheet_n = _sheet_samples(3000)
     sheet = sheet + [3.0, 0, 0]
@@ -769,8 +767,6 @@ def test_an_open_hemisphere_is_thickened_by_default_not_closed():
     assert len(samples) == 0 and len(fitted.shells[0]) == len(p)
     mesh = mesh_fit(model, samples, resolution=64, shells=fitted.shells)
     assert is_watertight(mesh)
-    from jaxrbf.objectives import point_spacing
-
     r = np.linalg.norm(mesh.vertices, axis=1)
     # a thin bowl on the sphere, ending within 2 spacings of its rim (`EDGE`): no lid across
     # the rim (closed, a third of the output lay in it)
@@ -798,7 +794,6 @@ def test_an_opening_of_a_fifth_is_kept_open_at_any_density(n):
     # 10k, 0.43 at 100k); the rim's hull measures the opening itself: a fifth of the area open
     # is thickened at every density, a twelfth is closed
     from jaxrbf._winding import openings, pieces
-    from jaxrbf.objectives import point_spacing
 
     ball = _sphere(2 * n, seed=1)
     fifth, twelfth = ball[ball[:, 2] < 0.6][:n], ball[ball[:, 2] < 5 / 6][:n]
@@ -812,8 +807,6 @@ def test_an_opening_of_a_fifth_is_kept_open_at_any_density(n):
 def test_small_open_pieces_beside_a_closed_one_are_read_on_their_own():
     # four open discs of 80 samples beside a closed sphere of 3,000: each is read and
     # thickened, not handed the sphere's side (closed into a balloon) as a sampling gap is
-    from jaxrbf.objectives import point_spacing
-
     rng = np.random.default_rng(3)
     parts, normals = [_sphere(3000, seed=3)], [_sphere(3000, seed=3)]
     for c in ([1.6, 0, 0], [-1.6, 0, 0], [0, 1.6, 0], [0, 0, -1.6]):

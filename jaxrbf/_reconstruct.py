@@ -556,6 +556,14 @@ def fit_surface_samples(
                     "the normals point into the solid (the samples' winding number reads about "
                     "-1/2 at them, not +1/2): flipped, so that they point out"
                 )
+            if vc.turned.any():
+                # parts wound the other way (an artist's model): turned out, sheet by sheet
+                n = np.where(vc.turned[:, None], -n, n)
+                rebuild = True
+                log(
+                    f"{int(vc.turned.sum()):,} samples on parts whose normals point into the "
+                    "solid (the winding number reads about -1/2 at them): turned out"
+                )
             if verbose:
                 log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
             if vc.buried.any():

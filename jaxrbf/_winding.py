@@ -47,6 +47,7 @@ boundaries, where it passes through 1/2.
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 from typing import NamedTuple
 
@@ -421,7 +422,8 @@ class VolumeConstraints(NamedTuple):
     closing surface where the data stop (`closing_samples`; empty unless asked for).
     `near_rims`, `shell`: how many of the points are `rim_probes` and `shell_probes`. `tree`:
     the samples' winding tree that valued them (for `contradicted`). `flipped`: the normals
-    pointed into the solid and were flipped first (`points_inward`). `level_median`: the median
+    pointed into the solid and were flipped first (`points_inward`). `turned`: the samples whose
+    normals pointed into the solid part by part, turned out after that (`inward_samples`). `level_median`: the median
     of the closing level's sites (`closing_level`; 1/2 on a closed surface)."""
 
     points: np.ndarray
@@ -434,6 +436,7 @@ class VolumeConstraints(NamedTuple):
     shell: int = 0
     tree: WindingTree | None = None
     flipped: bool = False
+    turned: np.ndarray = np.zeros(0, dtype=bool)
     level_median: float = 0.5
 
     def summary(self) -> str:
@@ -526,7 +529,8 @@ def volume_constraints(
     `close`: also sample the closing surface (`closing_samples`), seeded by the probes over
     holes and past open boundaries. `bury`: also find the buried samples (`buried_samples`;
     default: with `close`). `orient`: when the normals all point into the solid
-    (`points_inward`), flip them first (the result's `flipped` says so)."""
+    (`points_inward`), flip them first (the result's `flipped` says so), then turn out the samples
+    of parts whose normals point into the solid (`inward_samples`; the result's `turned`)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3 or nrm.shape != p.shape:
@@ -550,6 +554,10 @@ def volume_constraints(
     flipped = bool(orient and points_inward(p, wtree))
     if flipped:  # the areas do not depend on the normals' sign (the jump is |w+ - w-|)
         nrm = -nrm
+        wtree = winding_tree(p, nrm, np.asarray(areas))
+    turned = inward_samples(p, nrm, spacing, wtree, tree) if orient else np.zeros(len(p), bool)
+    if turned.any():  # parts wound the other way, turned out one by one
+        nrm = np.where(turned[:, None], -nrm, nrm)
         wtree = winding_tree(p, nrm, np.asarray(areas))
     bury = close if bury is None else bury
     buried = buried_samples(p, nrm, spacing, wtree, tree) if bury else np.zeros(len(p), dtype=bool)
@@ -638,6 +646,7 @@ def volume_constraints(
         shell=n_shell,
         tree=wtree,
         flipped=flipped,
+        turned=turned,
         level_median=float(np.median(level.levels)) if len(level.levels) else 0.5,
     )
 
@@ -817,6 +826,64 @@ def points_inward(points, wtree: WindingTree, tested: int = ORIENT_TESTED) -> bo
         idx = np.random.default_rng(0).choice(len(p), tested, replace=False)
     w = winding_number(p[idx], None, None, tree=wtree)
     return bool(np.median(w) < -ORIENT_LEVEL)
+
+
+#: `inward_samples`: w is read at every sample up to INWARD_TESTED (a random subset beyond), and
+#: each sample takes the median of its INWARD_K nearest tested samples within INWARD_LINK
+#: spacings (of the tested subset) whose normals agree with its own (cosine above INWARD_COS).
+INWARD_TESTED, INWARD_K, INWARD_LINK, INWARD_COS = 200_000, 16, 4.0, 0.5
+#: Samples so found are turned in pieces (`pieces`) of INWARD_MIN samples or more.
+INWARD_MIN = 30
+
+
+def inward_samples(points, normals, spacing: float, wtree: WindingTree, tree=None) -> np.ndarray:
+    """Which samples' normals point into the solid, part by part: the median winding number of
+    all the samples, read over each sample's neighbours that face its way (its part's sheet, not
+    a crossing or touching part's), is below -`ORIENT_LEVEL` (`points_inward`, sample by sample).
+    An artist's model often has parts whose faces are wound the other way: a closed part turned
+    inside out reads about -1/2 at its samples (its own surface gives -1/2, parts it lies outside
+    of 0), where a correctly wound one reads +1/2, a cavity's wall +1/2 (-1/2 of its own, +1
+    from the solid round it), a patch of a closed surface about +1/2 whichever way it points
+    (the rest of the surface gives that), and an open sheet its share of a closed surface (0
+    when flat). Left as they are, the inside-out part's volume constraints and off-surface points
+    say outside where its inside is. (Sheets of agreeing normals, judged as a whole, merge
+    through any contact: an eye that touches the head it sits on faces the head's way there.)
+
+    **Returns:** a boolean mask over the samples (all False when none points in)."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float)
+    n = len(p)
+    if n > INWARD_TESTED:
+        idx = np.sort(np.random.default_rng(0).choice(n, INWARD_TESTED, replace=False))
+        reach = INWARD_LINK * spacing * np.sqrt(n / INWARD_TESTED)
+    else:
+        idx = np.arange(n)
+        reach = INWARD_LINK * spacing
+    w = np.asarray(winding_number(p[idx], None, None, tree=wtree))
+    sub = cKDTree(p[idx]) if len(idx) < n else (cKDTree(p) if tree is None else tree)
+    k = min(INWARD_K, len(idx))
+    d, nb = sub.query(p, k=k, distance_upper_bound=reach, workers=-1)
+    d, nb = d.reshape(n, k), nb.reshape(n, k)
+    ok = np.isfinite(d)
+    safe = np.where(ok, nb, 0)
+    ok &= np.einsum("ij,ikj->ik", nrm, nrm[idx][safe]) > INWARD_COS
+    vals = np.where(ok, w[safe], np.nan)
+    with warnings.catch_warnings():  # a sample with no neighbour facing its way: no reading
+        warnings.simplefilter("ignore", RuntimeWarning)
+        score = np.nanmedian(vals, axis=1)
+    # ... and, where read, the sample's own w is below 0 too: a sample beside a touching part
+    # that faces its way there reads its own side (a sphere's samples where an inside-out one
+    # touches it: 0.35-0.49, their neighbours' median below -0.1)
+    own = np.full(n, -np.inf)
+    own[idx] = w
+    inward = (np.nan_to_num(score, nan=0.0) < -ORIENT_LEVEL) & (own < 0)
+    if inward.any():
+        # whole parts only: a few samples that read low on their own (a thin part's sides, a
+        # crease) are trusted as given
+        found = np.flatnonzero(inward)
+        label = pieces(p[found], spacing)
+        inward[found] = np.bincount(label)[label] >= INWARD_MIN
+    return inward
 
 
 def contradicted(points, outside, wtree: WindingTree, tested: int | None = None) -> np.ndarray:

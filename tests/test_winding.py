@@ -616,6 +616,54 @@ def test_normals_that_all_point_inward_are_found():
     assert not volume_constraints(p, p, orient=True).flipped
 
 
+def _figure_with_a_part_wound_inward(seed=0):
+    """A unit sphere with a cavity (a sphere of radius 0.4 inside, its normals towards its
+    centre: out of the solid), a small sphere touching it from outside and one further off, the
+    touching one wound the other way (its normals towards its centre); also which samples are
+    the inward part's."""
+    big = _sphere(4000, seed)
+    cavity = 0.4 * _sphere(800, seed + 1)
+    touching = 0.3 * _sphere(600, seed + 2) + [1.3, 0, 0]  # 0.3 off-centre: touches at x = 1
+    apart = 0.3 * _sphere(600, seed + 3) + [0, 1.6, 0]
+    p = np.concatenate([big, cavity, touching, apart])
+    n = np.concatenate(
+        [big, -cavity / 0.4, -(touching - [1.3, 0, 0]) / 0.3, (apart - [0, 1.6, 0]) / 0.3]
+    )
+    wound = np.zeros(len(p), bool)
+    wound[4800:5400] = True
+    return p, n, wound
+
+
+def test_parts_wound_the_other_way_are_turned_out_part_by_part():
+    p, n, wound = _figure_with_a_part_wound_inward()
+    spacing = point_spacing(p)
+    wtree = winding_tree(p, n, calibrated_areas(p, n, spacing=spacing))
+    turned = winding.inward_samples(p, n, spacing, wtree)
+    # the part turned inside out, not the cavity's wall (its normals point into the void, out of
+    # the solid) nor the sphere it touches (measured: 579 of its 600, nothing else)
+    assert turned[wound].mean() > 0.95 and not turned[~wound].any()
+    # beyond INWARD_TESTED samples, a subset is read and carried to the rest
+    tested = winding.INWARD_TESTED
+    try:
+        winding.INWARD_TESTED = 2000
+        assert (winding.inward_samples(p, n, spacing, wtree) == turned).mean() > 0.99
+    finally:
+        winding.INWARD_TESTED = tested
+    vc = volume_constraints(p, n, orient=True)
+    assert not vc.flipped and np.array_equal(vc.turned, turned)
+    # the inward part's inside is now inside, the cavity still outside
+    q = np.array([[1.3, 0, 0], [1.3, 0.1, 0.1], [0, 0, 0], [0, 0.1, -0.1]])
+    near = cKDTree(q).query(vc.points)
+    close = near[0] < 0.15
+    assert np.all(vc.values[close & (near[1] < 2)] < 0) and np.all(
+        vc.values[close & (near[1] >= 2)] > 0
+    )
+    # a consistently wound input turns nothing
+    right = np.where(wound[:, None], -n, n)
+    wtree = winding_tree(p, right, calibrated_areas(p, right, spacing=spacing))
+    assert not winding.inward_samples(p, right, spacing, wtree).any()
+
+
 @pytest.mark.slow
 def test_a_cloud_whose_normals_all_point_inward_gives_the_same_surface(capsys):
     # before: the volume constraints read "outside" everywhere (w = -1 inside), the fit was

@@ -551,11 +551,16 @@ def volume_constraints(
     if areas is None:
         areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, np.asarray(areas))
-    flipped = bool(orient and points_inward(p, wtree))
+    flipped, turned = False, np.zeros(len(p), dtype=bool)
+    if orient:
+        idx, w = sample_readings(p, wtree)  # `points_inward`'s, shared with `inward_samples`
+        flipped = bool(np.median(w) < -ORIENT_LEVEL)
     if flipped:  # the areas do not depend on the normals' sign (the jump is |w+ - w-|)
         nrm = -nrm
         wtree = winding_tree(p, nrm, np.asarray(areas))
-    turned = inward_samples(p, nrm, spacing, wtree, tree) if orient else np.zeros(len(p), bool)
+        w = -w  # w is linear in the normals
+    if orient:
+        turned = inward_samples(p, nrm, spacing, wtree, tree, readings=(idx, w))
     if turned.any():  # parts wound the other way, turned out one by one
         nrm = np.where(turned[:, None], -nrm, nrm)
         wtree = winding_tree(p, nrm, np.asarray(areas))
@@ -821,22 +826,31 @@ def points_inward(points, wtree: WindingTree, tested: int = ORIENT_TESTED) -> bo
     cloud (a tool that orients towards the inside; the global sign of Open3D's
     `orient_normals_consistent_tangent_plane` is arbitrary)."""
     p = np.asarray(points, dtype=float)
+    return bool(np.median(sample_readings(p, wtree, tested)[1]) < -ORIENT_LEVEL)
+
+
+def sample_readings(points, wtree: WindingTree, tested: int = ORIENT_TESTED):
+    """`(idx, w)`: the winding number at (up to `tested` of, a seeded random subset) the samples
+    `points`, those of `wtree` (`points_inward`, `inward_samples`)."""
+    p = np.asarray(points, dtype=float)
     idx = np.arange(len(p))
     if len(p) > tested:
-        idx = np.random.default_rng(0).choice(len(p), tested, replace=False)
-    w = winding_number(p[idx], None, None, tree=wtree)
-    return bool(np.median(w) < -ORIENT_LEVEL)
+        idx = np.sort(np.random.default_rng(0).choice(len(p), tested, replace=False))
+    return idx, np.asarray(winding_number(p[idx], None, None, tree=wtree))
 
 
-#: `inward_samples`: w is read at every sample up to INWARD_TESTED (a random subset beyond), and
-#: each sample takes the median of its INWARD_K nearest tested samples within INWARD_LINK
-#: spacings (of the tested subset) whose normals agree with its own (cosine above INWARD_COS).
-INWARD_TESTED, INWARD_K, INWARD_LINK, INWARD_COS = 200_000, 16, 4.0, 0.5
+#: `inward_samples`: w is read at the samples `points_inward` reads (`sample_readings`: up to
+#: ORIENT_TESTED, a random subset beyond), and each sample takes the median of its INWARD_K
+#: nearest of those within INWARD_LINK spacings (of that subset: scaled by the square root of
+#: the share read) whose normals agree with its own (cosine above INWARD_COS).
+INWARD_K, INWARD_LINK, INWARD_COS = 16, 4.0, 0.5
 #: Samples so found are turned in pieces (`pieces`) of INWARD_MIN samples or more.
 INWARD_MIN = 30
 
 
-def inward_samples(points, normals, spacing: float, wtree: WindingTree, tree=None) -> np.ndarray:
+def inward_samples(
+    points, normals, spacing: float, wtree: WindingTree, tree=None, readings=None
+) -> np.ndarray:
     """Which samples' normals point into the solid, part by part: the median winding number of
     all the samples, read over each sample's neighbours that face its way (its part's sheet, not
     a crossing or touching part's), is below -`ORIENT_LEVEL` (`points_inward`, sample by sample).
@@ -853,13 +867,8 @@ def inward_samples(points, normals, spacing: float, wtree: WindingTree, tree=Non
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     n = len(p)
-    if n > INWARD_TESTED:
-        idx = np.sort(np.random.default_rng(0).choice(n, INWARD_TESTED, replace=False))
-        reach = INWARD_LINK * spacing * np.sqrt(n / INWARD_TESTED)
-    else:
-        idx = np.arange(n)
-        reach = INWARD_LINK * spacing
-    w = np.asarray(winding_number(p[idx], None, None, tree=wtree))
+    idx, w = sample_readings(p, wtree) if readings is None else readings
+    reach = INWARD_LINK * spacing * np.sqrt(n / len(idx))
     sub = cKDTree(p[idx]) if len(idx) < n else (cKDTree(p) if tree is None else tree)
     k = min(INWARD_K, len(idx))
     d, nb = sub.query(p, k=k, distance_upper_bound=reach, workers=-1)

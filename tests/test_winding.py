@@ -642,13 +642,9 @@ def test_parts_wound_the_other_way_are_turned_out_part_by_part():
     # the part turned inside out, not the cavity's wall (its normals point into the void, out of
     # the solid) nor the sphere it touches (measured: 579 of its 600, nothing else)
     assert turned[wound].mean() > 0.95 and not turned[~wound].any()
-    # beyond INWARD_TESTED samples, a subset is read and carried to the rest
-    tested = winding.INWARD_TESTED
-    try:
-        winding.INWARD_TESTED = 2000
-        assert (winding.inward_samples(p, n, spacing, wtree) == turned).mean() > 0.99
-    finally:
-        winding.INWARD_TESTED = tested
+    # read at a subset (`points_inward`'s, beyond ORIENT_TESTED samples), carried to the rest
+    sub = winding.sample_readings(p, wtree, tested=2000)
+    assert (winding.inward_samples(p, n, spacing, wtree, readings=sub) == turned).mean() > 0.99
     vc = volume_constraints(p, n, orient=True)
     assert not vc.flipped and np.array_equal(vc.turned, turned)
     # the inward part's inside is now inside, the cavity still outside

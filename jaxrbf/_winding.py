@@ -183,6 +183,19 @@ RIM_MIN = 5
 #: (20k samples, 0.25% noise, true normals), closed, came out at Chamfer-L1 0.57% / NC 0.919 /
 #: precision 45% against Poisson's 0.27% / 0.974 / 84%; thickened, 0.11% / 0.993 / 99.9%.
 SHELL_LEVEL_NOISY = 0.25
+#: Two-faced samples (`two_faced`): at least TWO_FACED_PAIRS of a sample's TWO_FACED_K nearest
+#: within TWO_FACED_LINK spacings face the other way (cosine below -1/2) and lie in its tangent
+#: plane (less than TWO_FACED_OFFSET spacings off it); a piece more than TWO_FACED_SHARE of whose
+#: samples are is an open shell whatever w reads across it.
+TWO_FACED_K, TWO_FACED_LINK, TWO_FACED_PAIRS, TWO_FACED_OFFSET = 12, 3.0, 2, 0.1
+TWO_FACED_SHARE = 0.5
+#: A two-faced sheet within a piece (hanging on a closed part) is one of TWO_FACED_PART of the
+#: samples or more (and SHELL_MIN_SAMPLES): where two closed parts touch face to face (the
+#: contact's samples face both ways too) the patch holds few, but as many more as the sampling
+#: is denser (suzanne's largest: 18 samples of 100k).
+TWO_FACED_PART = 0.005
+#: Times a two-faced sheet takes in the samples most of whose neighbours are on it.
+TWO_FACED_GROW = 2
 
 
 def sample_areas(points: np.ndarray, k: int = AREA_NEIGHBOURS, tree=None) -> np.ndarray:
@@ -677,20 +690,85 @@ def pieces(points: np.ndarray, spacing: float, tree: cKDTree | None = None) -> n
 class Shells(NamedTuple):
     """`shell_samples`' answer: `mask`, which samples lie on open shells; `pieces` and
     `shells`, how many pieces were tested and found open; `level`, the shells' median
-    mid-value of w (NaN without any)."""
+    mid-value of w (NaN without any); `two_faced`, how many of the shells are two-faced
+    (`two_faced`)."""
 
     mask: np.ndarray
     pieces: int
     shells: int
     level: float
+    two_faced: int = 0
 
     def summary(self) -> str:
+        two = (
+            f", {self.two_faced} of them two-faced (a sheet sampled on both faces, wound both "
+            "ways, as an artist models a cloth or a leaf)"
+            if self.two_faced
+            else ""
+        )
+        read = (
+            f"median mid-value of w across them {self.level:.2f}, a closed surface's 1/2{two}"
+            if np.isfinite(self.level)
+            else two[2:]
+        )
         return (
             f"{int(self.mask.sum()):,} samples on {self.shells} open "
-            f"{'piece' if self.shells == 1 else 'pieces'} that bound no volume (median mid-value "
-            f"of w across them {self.level:.2f}, a closed surface's 1/2): meshed as thin "
-            "two-sided slabs round them, not closed"
+            f"{'piece' if self.shells == 1 else 'pieces'} that bound no volume ({read}): meshed "
+            "as thin two-sided slabs round them, not closed"
         )
+
+
+def _two_faced_sheets(p, pairs, spacing: float, tree) -> np.ndarray:
+    """The `two_faced` samples (`pairs`: `facing_pairs`) in linked groups (`pieces`) of
+    `TWO_FACED_PART` of the samples and `SHELL_MIN_SAMPLES` or more (a few apart are a thin part's
+    edge, a fold, a contact), with the samples
+    that face one of their neighbours and most of whose `SHELL_LINK_K` nearest are in such a group
+    (a sheet's border, whose samples have fewer neighbours to face; not a closed part's samples
+    where the sheet runs into it)."""
+    found = np.flatnonzero(pairs >= TWO_FACED_PAIRS)
+    sheet = np.zeros(len(p), dtype=bool)
+    least = max(SHELL_MIN_SAMPLES, TWO_FACED_PART * len(p))
+    if len(found) < least:
+        return sheet
+    label = pieces(p[found], spacing)
+    sheet[found] = np.bincount(label)[label] >= least
+    if sheet.any():
+        tree = cKDTree(p) if tree is None else tree
+        k = min(SHELL_LINK_K + 1, len(p))
+        d, idx = tree.query(p, k=k, distance_upper_bound=SHELL_LINK * spacing, workers=-1)
+        ok = np.isfinite(d.reshape(len(p), k))
+        idx = np.where(ok, idx.reshape(len(p), k), 0)
+        for _ in range(TWO_FACED_GROW):
+            sheet |= np.where(ok, sheet[idx], False).sum(axis=1) > ok.sum(axis=1) / 2
+    return sheet
+
+
+def two_faced(points, normals, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
+    """Which samples lie on a two-faced sheet: `facing_pairs` of `TWO_FACED_PAIRS` or more."""
+    return facing_pairs(points, normals, spacing, tree) >= TWO_FACED_PAIRS
+
+
+def facing_pairs(points, normals, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
+    """How many of each sample's `TWO_FACED_K` nearest (within `TWO_FACED_LINK` spacings) face
+    the other way and lie in its tangent plane (less than `TWO_FACED_OFFSET` spacings off it).
+    An artist models a cloth, a leaf or a card as
+    two coincident copies of one sheet wound opposite ways; their samples' dipoles cancel, so w
+    reads no jump across it (as across a thin closed plate, whose two faces' samples lie a
+    thickness apart along their normals), and a fit of samples that face both ways at one place
+    has no surface to give (a made sphere with such a cloth beside it: 28% of the samples more
+    than 4 spacings from the output, refused). The sheet is open: its slab is its surface."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float)
+    n = len(p)
+    tree = cKDTree(p) if tree is None else tree
+    k = min(TWO_FACED_K + 1, n)
+    d, idx = tree.query(p, k=k, distance_upper_bound=TWO_FACED_LINK * spacing, workers=-1)
+    d, idx = d.reshape(n, k), idx.reshape(n, k)
+    ok = np.isfinite(d)
+    safe = np.where(ok, idx, 0)
+    against = np.einsum("ij,ikj->ik", nrm, nrm[safe]) < -0.5
+    off = np.abs(np.einsum("ij,ikj->ik", nrm, p[safe] - p[:, None, :]))
+    return np.sum(ok & against & (off < TWO_FACED_OFFSET * spacing), axis=1)
 
 
 def shell_samples(
@@ -703,6 +781,7 @@ def shell_samples(
     level: float = SHELL_LEVEL,
     rim: np.ndarray | None = None,
     areas: np.ndarray | None = None,
+    faced: np.ndarray | None = None,
 ) -> Shells:
     """Which samples lie on open shells: pieces (`pieces`) that bound no volume, such as a
     sheet, a leaf, a shallow cap or an artist's car body without its underside. Across a
@@ -712,7 +791,8 @@ def shell_samples(
     below `level` (`SHELL_LEVEL`) in magnitude (normals turned into the solid turn its sign) is
     no more than half of a closed surface; given the samples' `rim` (`boundary_mask`) and
     `areas`, so is one below `SHELL_OPENING_LEVEL` whose openings span `SHELL_OPENING` of its
-    area or more (`openings`). Closing such a piece (a lid over a bowl or a vase, a lumpy cap
+    area or more (`openings`); given `faced` (`facing_pairs`), so is a piece more than
+    `TWO_FACED_SHARE` of whose samples are on two-faced sheets, and such a sheet by itself. Closing such a piece (a lid over a bowl or a vase, a lumpy cap
     across a sheet that w never puts inside) invents a large surface that the input does not
     have: it is better kept as it is, thickened (`jaxrbf._cavities.shell_slabs`).
 
@@ -744,7 +824,24 @@ def shell_samples(
     if rim is not None and areas is not None:
         wide = openings(p, label, rim, areas, spacing) >= SHELL_OPENING
     undecided = count < SHELL_SMALL
+    share = np.zeros(len(count))
+    doubled = whole = 0  # two-faced sheets: all, and those that are whole pieces
+    if faced is not None:
+        raw = np.asarray(faced) >= TWO_FACED_PAIRS
+        share = np.bincount(label, weights=raw.astype(float), minlength=len(count)) / count
+        # a two-faced sheet that hangs on a closed part (a cape on a figure) is open too, by
+        # itself
+        part = _two_faced_sheets(p, faced, spacing, tree) & (share[label] <= TWO_FACED_SHARE)
+        if part.any():
+            mask |= part
+            doubled += len(np.unique(label[part]))
     for g, sel in zip(big, np.split(np.arange(len(idx)), ends[:-1]), strict=True):
+        if share[g] > TWO_FACED_SHARE:  # no jump to read across it: open as it is
+            mask[label == g] = True
+            levels.append(mid[sel])
+            doubled += 1
+            whole += 1
+            continue
         # normals turned into the solid turn w and the side read: the jump stays, the
         # mid-value changes sign (a closed piece reads -1/2)
         m = abs(np.median(mid[sel]))
@@ -766,7 +863,7 @@ def shell_samples(
         _, near = cKDTree(p[read]).query(p[small], workers=-1)
         mask[small] = mask[read[near]]
     found = float(np.median(np.concatenate(levels))) if levels else float("nan")
-    return Shells(mask, len(big), len(levels), found)
+    return Shells(mask, len(big), len(levels) + (doubled - whole), found, doubled)
 
 
 def openings(points, label, rim, areas, spacing: float) -> np.ndarray:
@@ -793,7 +890,8 @@ def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = Fa
     `calibrated_areas` and their `boundary_mask`, as `volume_constraints` computes them (pass
     them on): `(shells, areas, rim)`. `noisy` (a cloud the fit approximates, a scan): at
     `SHELL_LEVEL_NOISY`, without the rims' `openings` (there the boundary test also fires on
-    gaps, and an opening is most often a part of a closed object that no view saw)."""
+    gaps, and an opening is most often a part of a closed object that no view saw; nor two-faced
+    sheets, `two_faced`)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -811,6 +909,8 @@ def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = Fa
         level=SHELL_LEVEL_NOISY if noisy else SHELL_LEVEL,
         rim=None if noisy else rim,
         areas=areas,
+        # a noisy cloud's thin parts read two-faced as well (their faces a noise width apart)
+        faced=None if noisy else facing_pairs(p, nrm, spacing, tree),
     )
     return found, areas, rim
 

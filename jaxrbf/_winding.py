@@ -196,6 +196,11 @@ TWO_FACED_SHARE = 0.5
 TWO_FACED_PART = 0.005
 #: Times a two-faced sheet takes in the samples most of whose neighbours are on it.
 TWO_FACED_GROW = 2
+#: A flap (`flap_samples`): a sample whose own reading is a sheet's, mid-value below FLAP_LEVEL
+#: in magnitude (nearer 0 than 1/3; a closed surface reads 1/2, and by a hole or an opening a
+#: tenth of its area, down to 0.3-0.4 in the first percentile of the samples); grouped and grown
+#: as the two-faced sheets are (`_sheets_of`).
+FLAP_LEVEL = 1 / 6
 
 
 def sample_areas(points: np.ndarray, k: int = AREA_NEIGHBOURS, tree=None) -> np.ndarray:
@@ -691,13 +696,14 @@ class Shells(NamedTuple):
     """`shell_samples`' answer: `mask`, which samples lie on open shells; `pieces` and
     `shells`, how many pieces were tested and found open; `level`, the shells' median
     mid-value of w (NaN without any); `two_faced`, how many of the shells are two-faced
-    (`two_faced`)."""
+    (`two_faced`); `flaps`, how many are open sheets hanging on closed pieces (`flap_samples`)."""
 
     mask: np.ndarray
     pieces: int
     shells: int
     level: float
     two_faced: int = 0
+    flaps: int = 0
 
     def summary(self) -> str:
         two = (
@@ -706,6 +712,11 @@ class Shells(NamedTuple):
             if self.two_faced
             else ""
         )
+        if self.flaps:
+            two += (
+                f", {self.flaps} of them hanging on closed pieces (a cape on a figure: read as a "
+                "sheet sample by sample)"
+            )
         read = (
             f"median mid-value of w across them {self.level:.2f}, a closed surface's 1/2{two}"
             if np.isfinite(self.level)
@@ -718,14 +729,13 @@ class Shells(NamedTuple):
         )
 
 
-def _two_faced_sheets(p, pairs, spacing: float, tree) -> np.ndarray:
-    """The `two_faced` samples (`pairs`: `facing_pairs`) in linked groups (`pieces`) of
-    `TWO_FACED_PART` of the samples and `SHELL_MIN_SAMPLES` or more (a few apart are a thin part's
-    edge, a fold, a contact), with the samples
-    that face one of their neighbours and most of whose `SHELL_LINK_K` nearest are in such a group
-    (a sheet's border, whose samples have fewer neighbours to face; not a closed part's samples
-    where the sheet runs into it)."""
-    found = np.flatnonzero(pairs >= TWO_FACED_PAIRS)
+def _sheets_of(p, flags, spacing: float, tree) -> np.ndarray:
+    """The samples `flags` (two-faced, `facing_pairs`; or flaps, `flap_samples`) in linked
+    groups (`pieces`) of `TWO_FACED_PART` of the samples and `SHELL_MIN_SAMPLES` or more (a few
+    apart are a thin part's edge, a fold, a contact), with the samples most of whose
+    `SHELL_LINK_K` nearest are in such a group, `TWO_FACED_GROW` times (a sheet's border, whose
+    samples have fewer neighbours to face, or read less of a jump)."""
+    found = np.flatnonzero(flags)
     sheet = np.zeros(len(p), dtype=bool)
     least = max(SHELL_MIN_SAMPLES, TWO_FACED_PART * len(p))
     if len(found) < least:
@@ -741,6 +751,25 @@ def _two_faced_sheets(p, pairs, spacing: float, tree) -> np.ndarray:
         for _ in range(TWO_FACED_GROW):
             sheet |= np.where(ok, sheet[idx], False).sum(axis=1) > ok.sum(axis=1) / 2
     return sheet
+
+
+def flap_samples(points, normals, spacing: float, wtree: WindingTree, tree=None) -> np.ndarray:
+    """Which samples read as an open sheet on their own: w `JUMP_SPACINGS` spacings along and
+    against the normal jumps by more than `SHELL_JUMP` with a mid-value below `FLAP_LEVEL` in
+    magnitude (a sheet's +1/2 and -1/2), read at the samples `points_inward` reads
+    (`sample_readings`' subset) and carried to the rest from the nearest read. A piece that
+    reads closed as a whole can hold one: a cape, a skirt or a wing hanging on a figure, which
+    closing would span with a balloon from its edge round to the body."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float)
+    idx, _ = sample_readings(p, wtree)
+    step = JUMP_SPACINGS * spacing * nrm[idx]
+    w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
+    w_out, w_in = w[: len(idx)], w[len(idx) :]
+    flap = (np.abs(w_in + w_out) / 2 < FLAP_LEVEL) & (w_in - w_out > SHELL_JUMP)
+    if len(idx) == len(p):
+        return flap
+    return flap[cKDTree(p[idx]).query(p, workers=-1)[1]]
 
 
 def two_faced(points, normals, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
@@ -782,6 +811,7 @@ def shell_samples(
     rim: np.ndarray | None = None,
     areas: np.ndarray | None = None,
     faced: np.ndarray | None = None,
+    flaps: bool = False,
 ) -> Shells:
     """Which samples lie on open shells: pieces (`pieces`) that bound no volume, such as a
     sheet, a leaf, a shallow cap or an artist's car body without its underside. Across a
@@ -792,7 +822,8 @@ def shell_samples(
     no more than half of a closed surface; given the samples' `rim` (`boundary_mask`) and
     `areas`, so is one below `SHELL_OPENING_LEVEL` whose openings span `SHELL_OPENING` of its
     area or more (`openings`); given `faced` (`facing_pairs`), so is a piece more than
-    `TWO_FACED_SHARE` of whose samples are on two-faced sheets, and such a sheet by itself. Closing such a piece (a lid over a bowl or a vase, a lumpy cap
+    `TWO_FACED_SHARE` of whose samples are on two-faced sheets, and such a sheet by itself;
+    with `flaps`, so are the open sheets that hang on pieces that read closed (`flap_samples`). Closing such a piece (a lid over a bowl or a vase, a lumpy cap
     across a sheet that w never puts inside) invents a large surface that the input does not
     have: it is better kept as it is, thickened (`jaxrbf._cavities.shell_slabs`).
 
@@ -831,7 +862,7 @@ def shell_samples(
         share = np.bincount(label, weights=raw.astype(float), minlength=len(count)) / count
         # a two-faced sheet that hangs on a closed part (a cape on a figure) is open too, by
         # itself
-        part = _two_faced_sheets(p, faced, spacing, tree) & (share[label] <= TWO_FACED_SHARE)
+        part = _sheets_of(p, raw, spacing, tree) & (share[label] <= TWO_FACED_SHARE)
         if part.any():
             mask |= part
             doubled += len(np.unique(label[part]))
@@ -855,6 +886,13 @@ def shell_samples(
                 levels.append(mid[sel])
         elif few:  # unclear: as if unread
             undecided[g] = True
+    flapped = 0
+    if flaps and not mask.all():
+        # open sheets hanging on pieces that read closed as a whole
+        flap = _sheets_of(p, flap_samples(p, nrm, spacing, wtree, tree), spacing, tree) & ~mask
+        if flap.any():
+            mask |= flap
+            flapped = len(np.unique(label[flap]))
     small = undecided[label]
     if levels and small.any():
         # a few samples off on their own (random sampling leaves gaps) go with the nearest
@@ -863,7 +901,9 @@ def shell_samples(
         _, near = cKDTree(p[read]).query(p[small], workers=-1)
         mask[small] = mask[read[near]]
     found = float(np.median(np.concatenate(levels))) if levels else float("nan")
-    return Shells(mask, len(big), len(levels) + (doubled - whole), found, doubled)
+    return Shells(
+        mask, len(big), len(levels) + (doubled - whole) + flapped, found, doubled, flapped
+    )
 
 
 def openings(points, label, rim, areas, spacing: float) -> np.ndarray:
@@ -911,6 +951,7 @@ def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = Fa
         areas=areas,
         # a noisy cloud's thin parts read two-faced as well (their faces a noise width apart)
         faced=None if noisy else facing_pairs(p, nrm, spacing, tree),
+        flaps=not noisy,
     )
     return found, areas, rim
 

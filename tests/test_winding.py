@@ -663,6 +663,33 @@ def test_two_faced_sheets_are_open_shells_alone_or_hanging_on_a_closed_part():
     assert not winding.two_faced(sphere, sphere, point_spacing(sphere)).any()
 
 
+def test_an_open_sheet_hanging_on_a_closed_part_is_a_shell_by_itself():
+    # a cape on a figure: one piece that reads closed as a whole (the sphere's samples are most
+    # of it), whose sheet reads as one sample by sample
+    sphere = 0.8 * _sphere(4000)
+    cloth, cn = _cloth(1000, 0.5)
+    cn = cn * np.sign(cn[:, 2:])  # one face only, up
+    p, n = np.concatenate([sphere, cloth]), np.concatenate([sphere / 0.8, cn])
+    spacing = point_spacing(p)
+    shells, _, _ = open_shells(p, n, spacing)
+    outside = np.linalg.norm(cloth, axis=1) > 0.8 + 4 * spacing
+    # measured: 879 of the 886 cloth samples more than 4 spacings out of the sphere, and 21
+    # sphere samples by the seam (up to 5.1 spacings from the cloth)
+    assert (
+        shells.flaps == 1 and shells.shells == 1 and "hanging on closed pieces" in shells.summary()
+    )
+    assert shells.mask[4000:][outside].mean() > 0.98
+    taken = shells.mask[:4000]
+    assert taken.mean() < 0.03 and np.all(cKDTree(cloth).query(sphere[taken])[0] < 7 * spacing)
+    # not for a noisy cloud, nor for closed surfaces with a hole, or pierced by another
+    assert open_shells(p, n, spacing, noisy=True)[0].flaps == 0
+    holed = _sphere(3000)
+    holed = holed[holed[:, 2] < 0.8]
+    for q, nq in ((holed, holed), _two_spheres(2000)):
+        found = open_shells(q, nq, point_spacing(q))[0]
+        assert found.flaps == 0 and not found.mask.any()
+
+
 @pytest.mark.slow
 def test_a_two_faced_cloth_beside_a_closed_part_gives_a_mesh_of_both():
     # before: its samples facing both ways at one place left the fit no surface there, and the

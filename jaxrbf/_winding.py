@@ -674,6 +674,15 @@ def volume_constraints(
     )
 
 
+def _neighbours(tree: cKDTree, q: np.ndarray, k: int, reach: float):
+    """`(ok, idx)`, (m, k) arrays: the `k` nearest samples of `tree` to each of `q` (itself
+    included when it is one) and which of them lie within `reach` (`idx` 0 where not)."""
+    k = min(k, tree.n)
+    d, idx = tree.query(q, k=k, distance_upper_bound=reach, workers=-1)
+    ok = np.isfinite(d.reshape(len(q), k))
+    return ok, np.where(ok, idx.reshape(len(q), k), 0)
+
+
 def pieces(points: np.ndarray, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
     """A label per sample: the pieces of `points` linked by each sample's `SHELL_LINK_K` nearest
     samples within `SHELL_LINK` spacings (a k-nearest graph: its size grows with the samples,
@@ -683,11 +692,8 @@ def pieces(points: np.ndarray, spacing: float, tree: cKDTree | None = None) -> n
 
     n = len(points)
     tree = cKDTree(points) if tree is None else tree
-    k = min(SHELL_LINK_K + 1, n)
-    d, idx = tree.query(points, k=k, distance_upper_bound=SHELL_LINK * spacing, workers=-1)
-    d, idx = d.reshape(n, k), idx.reshape(n, k)
-    ok = np.isfinite(d)
-    rows = np.repeat(np.arange(n), k).reshape(n, k)[ok]
+    ok, idx = _neighbours(tree, points, SHELL_LINK_K + 1, SHELL_LINK * spacing)
+    rows = np.repeat(np.arange(n), ok.shape[1]).reshape(ok.shape)[ok]
     graph = coo_matrix((np.ones(len(rows), np.int8), (rows, idx[ok])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
 
@@ -744,10 +750,7 @@ def _sheets_of(p, flags, spacing: float, tree) -> np.ndarray:
     sheet[found] = np.bincount(label)[label] >= least
     if sheet.any():
         tree = cKDTree(p) if tree is None else tree
-        k = min(SHELL_LINK_K + 1, len(p))
-        d, idx = tree.query(p, k=k, distance_upper_bound=SHELL_LINK * spacing, workers=-1)
-        ok = np.isfinite(d.reshape(len(p), k))
-        idx = np.where(ok, idx.reshape(len(p), k), 0)
+        ok, idx = _neighbours(tree, p, SHELL_LINK_K + 1, SHELL_LINK * spacing)
         for _ in range(TWO_FACED_GROW):
             sheet |= np.where(ok, sheet[idx], False).sum(axis=1) > ok.sum(axis=1) / 2
     return sheet
@@ -788,13 +791,8 @@ def facing_pairs(points, normals, spacing: float, tree: cKDTree | None = None) -
     than 4 spacings from the output, refused). The sheet is open: its slab is its surface."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
-    n = len(p)
     tree = cKDTree(p) if tree is None else tree
-    k = min(TWO_FACED_K + 1, n)
-    d, idx = tree.query(p, k=k, distance_upper_bound=TWO_FACED_LINK * spacing, workers=-1)
-    d, idx = d.reshape(n, k), idx.reshape(n, k)
-    ok = np.isfinite(d)
-    safe = np.where(ok, idx, 0)
+    ok, safe = _neighbours(tree, p, TWO_FACED_K + 1, TWO_FACED_LINK * spacing)
     against = np.einsum("ij,ikj->ik", nrm, nrm[safe]) < -0.5
     off = np.abs(np.einsum("ij,ikj->ik", nrm, p[safe] - p[:, None, :]))
     return np.sum(ok & against & (off < TWO_FACED_OFFSET * spacing), axis=1)
@@ -1011,11 +1009,7 @@ def inward_samples(
     idx, w = sample_readings(p, wtree) if readings is None else readings
     reach = INWARD_LINK * spacing * np.sqrt(n / len(idx))
     sub = cKDTree(p[idx]) if len(idx) < n else (cKDTree(p) if tree is None else tree)
-    k = min(INWARD_K, len(idx))
-    d, nb = sub.query(p, k=k, distance_upper_bound=reach, workers=-1)
-    d, nb = d.reshape(n, k), nb.reshape(n, k)
-    ok = np.isfinite(d)
-    safe = np.where(ok, nb, 0)
+    ok, safe = _neighbours(sub, p, INWARD_K, reach)
     ok &= np.einsum("ij,ikj->ik", nrm, nrm[idx][safe]) > INWARD_COS
     vals = np.where(ok, w[safe], np.nan)
     with warnings.catch_warnings():  # a sample with no neighbour facing its way: no reading

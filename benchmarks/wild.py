@@ -162,6 +162,7 @@ ONE_SIDED_SAMPLES = 500_000
 HOLES = 12  # holes cut out of a closed mesh (kind "holed")
 CUT_AWAY = 0.2  # the cut sphere's opening, share of its area (kind "made")
 TERRAIN_HILLS, TERRAIN_NOISE = 8, 0.0025  # the made terrain's hills and noise (of the diagonal)
+WOUND_PARTS = (1, 3, 5)  # the made wound figure's parts wound inside out (2 limbs and an eye)
 
 
 @dataclass(frozen=True)
@@ -219,6 +220,10 @@ INPUTS = (
     # kinds the shared meshes lack, made here: one large opening; an open, noisy terrain
     Input("cut-sphere-10k", "made", "cut-sphere", 10_000),
     Input("noisy-terrain-20k", "made", "terrain", 20_000, noise=TERRAIN_NOISE),
+    # an artist's habits: parts wound the other way; cloths as two coincident faces wound
+    # opposite ways, or one face, running into a closed part
+    Input("wound-figure-10k", "made", "wound-figure", 10_000),
+    Input("cloth-figure-10k", "made", "cloth-figure", 10_000),
 )
 BY_NAME = {i.name: i for i in INPUTS}
 
@@ -340,7 +345,11 @@ def made_mesh(name: str, seed: int):
     """The made surfaces (kind "made"): "cut-sphere", a unit sphere (icosphere, 20,480 faces)
     turned by a seeded rotation, without the faces whose centroids lie in its top CUT_AWAY of
     area; "terrain", a 160 x 160 height field over the unit square with TERRAIN_HILLS seeded
-    Gaussian hills and dips (heights -0.12 to 0.2, widths 0.06 to 0.2) on a ripple of 0.02."""
+    Gaussian hills and dips (heights -0.12 to 0.2, widths 0.06 to 0.2) on a ripple of 0.02;
+    "wound-figure", an ellipsoid body with 4 seeded capsule limbs that cross it and 2 eyes that
+    nearly touch it, the parts WOUND_PARTS wound inside out; "cloth-figure", a ball with a box
+    on it and two wavy cloths that run into it, one as two coincident faces wound opposite ways,
+    the other as one face."""
     import trimesh
 
     from jaxrbf import io
@@ -367,7 +376,57 @@ def made_mesh(name: str, seed: int):
             [np.stack([a, b, cc], -1).reshape(-1, 3), np.stack([a, cc, d], -1).reshape(-1, 3)]
         )
         return io.Mesh(np.stack([u, v, z], -1).reshape(-1, 3), faces)
+    if name == "wound-figure":
+        body = trimesh.creation.icosphere(4, 1.0)
+        body.apply_scale([1.0, 0.7, 1.3])
+        parts = [body]
+        for i in range(4):
+            limb = trimesh.creation.capsule(1.2, 0.22, count=[24, 24])
+            ang, tilt = rng.uniform(0, 2 * np.pi), rng.uniform(0.3, 1.2)
+            turn = trimesh.transformations.rotation_matrix(tilt, [np.cos(ang), np.sin(ang), 0])
+            limb.apply_transform(turn)
+            limb.apply_translation([0.7 * np.cos(ang), 0.5 * np.sin(ang), -0.6 + 0.4 * (i % 2)])
+            parts.append(limb)
+        for x in (-0.3, 0.3):  # eyes, nearly touching the body
+            eye = trimesh.creation.icosphere(3, 0.15)
+            eye.apply_translation([x, -0.75, 0.6])
+            parts.append(eye)
+        return _joined(parts, wound=WOUND_PARTS)
+    if name == "cloth-figure":
+        ball = trimesh.creation.icosphere(4, 0.8)
+        box = trimesh.creation.box([0.6, 0.6, 0.6])
+        box.apply_translation([0, 0, 1.3])
+        k = 60
+        u, v = np.meshgrid(np.linspace(-1, 1, k), np.linspace(-0.6, 0.6, k), indexing="ij")
+        z = 0.2 + 0.1 * np.sin(3 * u) * np.cos(2 * v)
+        idx = np.arange(k * k).reshape(k, k)
+        a, b, cc, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+        faces = np.concatenate(
+            [np.stack([a, b, cc], -1).reshape(-1, 3), np.stack([a, cc, d], -1).reshape(-1, 3)]
+        )
+        right = np.stack([u + 1.5, v, z], -1).reshape(-1, 3)  # into the ball from +x
+        left = np.stack([-u - 1.5, v, z - 0.4], -1).reshape(-1, 3)  # from -x
+        cloths = [
+            trimesh.Trimesh(right, faces, process=False),
+            trimesh.Trimesh(right, faces[:, ::-1], process=False),  # its second face
+            trimesh.Trimesh(left, faces[:, ::-1], process=False),  # one face
+        ]
+        return _joined([ball, box, *cloths])
     raise ValueError(f"no made surface {name!r}")
+
+
+def _joined(parts, wound=()):
+    """One mesh of the trimesh `parts`, those numbered in `wound` with their faces wound the
+    other way."""
+    from jaxrbf import io
+
+    vs, fs, off = [], [], 0
+    for i, part in enumerate(parts):
+        f = np.asarray(part.faces)
+        fs.append((f[:, ::-1] if i in wound else f) + off)
+        vs.append(np.asarray(part.vertices))
+        off += len(part.vertices)
+    return io.Mesh(np.concatenate(vs), np.concatenate(fs))
 
 
 def prepare(inp: Input, workdir: Path, seed: int):

@@ -836,61 +836,76 @@ def shell_samples(
     label = pieces(p, spacing, tree)
     count = np.bincount(label)
     big = np.flatnonzero(count >= SHELL_SMALL)
-    rng = np.random.default_rng(seed)
-    picks = [
-        rng.choice(np.flatnonzero(label == g), min(int(count[g]), SHELL_TESTED), replace=False)
-        for g in big
-    ]
-    if not picks:
-        return Shells(mask, 0, 0, float("nan"))
-    idx = np.concatenate(picks)
-    step = JUMP_SPACINGS * spacing * nrm[idx]
-    w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
-    w_out, w_in = w[: len(idx)], w[len(idx) :]
-    mid, jump = (w_in + w_out) / 2, w_in - w_out
-    levels, ends = [], np.cumsum([len(k) for k in picks])
-    wide = None
-    if rim is not None and areas is not None:
-        wide = openings(p, label, rim, areas, spacing) >= SHELL_OPENING
-    undecided = count < SHELL_SMALL
+    # Sheets within pieces first: two-faced ones (`faced`) and flaps hanging on closed parts
+    # are open by themselves, and the rest of their piece is judged without them (their rims
+    # are not its openings, their readings not its mid-value).
     share = np.zeros(len(count))
-    doubled = whole = 0  # two-faced sheets: all, and those that are whole pieces
+    part = flap = np.zeros(len(p), dtype=bool)
     if faced is not None:
         raw = np.asarray(faced) >= TWO_FACED_PAIRS
         share = np.bincount(label, weights=raw.astype(float), minlength=len(count)) / count
-        # a two-faced sheet that hangs on a closed part (a cape on a figure) is open too, by
-        # itself
         part = _sheets_of(p, raw, spacing, tree) & (share[label] <= TWO_FACED_SHARE)
-        if part.any():
-            mask |= part
-            doubled += len(np.unique(label[part]))
-    for g, sel in zip(big, np.split(np.arange(len(idx)), ends[:-1]), strict=True):
-        if share[g] > TWO_FACED_SHARE:  # no jump to read across it: open as it is
-            mask[label == g] = True
-            levels.append(mid[sel])
-            doubled += 1
-            whole += 1
-            continue
-        # normals turned into the solid turn w and the side read: the jump stays, the
-        # mid-value changes sign (a closed piece reads -1/2)
-        m = abs(np.median(mid[sel]))
-        open_ = m < level or (wide is not None and wide[g] and m < SHELL_OPENING_LEVEL)
-        # a piece a few spacings across subtends little from JUMP_SPACINGS off: its jump
-        # reads about 1/2 where a large sheet's reads 1 (a thin closed plate's still 0)
-        few = count[g] < SHELL_MIN_SAMPLES
-        if np.median(jump[sel]) > (SHELL_JUMP / 2 if few else SHELL_JUMP):
-            if open_:
+    if flaps:
+        flap = _sheets_of(p, flap_samples(p, nrm, spacing, wtree, tree), spacing, tree)
+        flap &= ~part & (share[label] <= TWO_FACED_SHARE)
+        # most of its piece: a sheet on its own, which the piece's own reading judges
+        most = np.bincount(label, weights=flap.astype(float), minlength=len(count)) / count
+        flap &= most[label] <= TWO_FACED_SHARE
+    hanging = part | flap
+    if hanging.any() and not hanging.all():
+        # what the sheets leave beside them in bits of fewer than SHELL_SMALL samples (a
+        # sample or two at a sheet's free edge, which its reading misses) goes with them: left
+        # alone, a stray sample off the rest's surface grows a closing of its own (1,186
+        # closing samples round one on a made cloth's edge)
+        rest = np.flatnonzero(~hanging)
+        bits = pieces(p[rest], spacing)
+        small = rest[np.bincount(bits)[bits] < SHELL_SMALL]
+        by = cKDTree(p[hanging]).query(p[small], distance_upper_bound=SHELL_LINK * spacing)[0]
+        hanging[small[np.isfinite(by)]] = True  # beside the sheets, not a gap elsewhere
+    rng = np.random.default_rng(seed)
+    big = np.array([g for g in big if np.any(~hanging[label == g])], dtype=np.int64)
+    picks = [
+        rng.choice(
+            np.flatnonzero((label == g) & ~hanging),
+            min(int(np.sum((label == g) & ~hanging)), SHELL_TESTED),
+            replace=False,
+        )
+        for g in big
+    ]
+    levels, doubled, whole = [], len(np.unique(label[part])), 0
+    undecided = count < SHELL_SMALL
+    if picks:
+        idx = np.concatenate(picks)
+        step = JUMP_SPACINGS * spacing * nrm[idx]
+        w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
+        w_out, w_in = w[: len(idx)], w[len(idx) :]
+        mid, jump = (w_in + w_out) / 2, w_in - w_out
+        ends = np.cumsum([len(k) for k in picks])
+        wide = None
+        if rim is not None and areas is not None:
+            wide = openings(p, label, rim & ~hanging, areas, spacing) >= SHELL_OPENING
+        for g, sel in zip(big, np.split(np.arange(len(idx)), ends[:-1]), strict=True):
+            if share[g] > TWO_FACED_SHARE:  # no jump to read across it: open as it is
                 mask[label == g] = True
                 levels.append(mid[sel])
-        elif few:  # unclear: as if unread
-            undecided[g] = True
-    flapped = 0
-    if flaps and not mask.all():
-        # open sheets hanging on pieces that read closed as a whole
-        flap = _sheets_of(p, flap_samples(p, nrm, spacing, wtree, tree), spacing, tree) & ~mask
-        if flap.any():
-            mask |= flap
-            flapped = len(np.unique(label[flap]))
+                doubled += 1
+                whole += 1
+                continue
+            # normals turned into the solid turn w and the side read: the jump stays, the
+            # mid-value changes sign (a closed piece reads -1/2)
+            m = abs(np.median(mid[sel]))
+            open_ = m < level or (wide is not None and wide[g] and m < SHELL_OPENING_LEVEL)
+            # a piece a few spacings across subtends little from JUMP_SPACINGS off: its jump
+            # reads about 1/2 where a large sheet's reads 1 (a thin closed plate's still 0)
+            few = count[g] < SHELL_MIN_SAMPLES
+            if np.median(jump[sel]) > (SHELL_JUMP / 2 if few else SHELL_JUMP):
+                if open_:
+                    mask[label == g] = True
+                    levels.append(mid[sel])
+            elif few:  # unclear: as if unread
+                undecided[g] = True
+    flapped = len(np.unique(label[flap & ~mask]))
+    mask |= hanging
     small = undecided[label]
     if levels and small.any():
         # a few samples off on their own (random sampling leaves gaps) go with the nearest

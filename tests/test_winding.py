@@ -641,14 +641,14 @@ def test_two_faced_sheets_are_open_shells_alone_or_hanging_on_a_closed_part():
         assert faced[3000:].mean() > 0.9 and not faced[:3000].any()
         shells, _, _ = open_shells(p, n, spacing)
         assert shells.two_faced == 1 and shells.shells == 1 and "two-faced" in shells.summary()
-        # the cloth is a shell, its border too (measured: 2,000 / 1,989 of its samples), the
-        # sphere is not, but for its samples by the seam where the cloth runs into it (60,
+        # the cloth is a shell, its border too (measured: 2,000 / 1,999 of its samples), the
+        # sphere is not, but for its samples by the seam where the cloth runs into it (61,
         # taken in with the cloth's border: they stand for little, where a fringe of cloth
         # samples left out, facing both ways, would break the closed fit)
         assert shells.mask[3000:].mean() > 0.99
         taken = shells.mask[:3000]
         assert taken.mean() < 0.03
-        assert np.all(cKDTree(cloth).query(sphere[taken])[0] < 5 * spacing)  # measured: 3.9
+        assert np.all(cKDTree(cloth).query(sphere[taken])[0] < 5 * spacing)  # measured: 4.2
         # a noisy cloud is not asked (its thin parts' faces lie a noise width apart): there a
         # cloth sampled so reads as no shell at all
         assert not open_shells(p, n, spacing, noisy=True)[0].mask.any()
@@ -673,7 +673,7 @@ def test_an_open_sheet_hanging_on_a_closed_part_is_a_shell_by_itself():
     spacing = point_spacing(p)
     shells, _, _ = open_shells(p, n, spacing)
     outside = np.linalg.norm(cloth, axis=1) > 0.8 + 4 * spacing
-    # measured: 879 of the 886 cloth samples more than 4 spacings out of the sphere, and 21
+    # measured: 884 of the 886 cloth samples more than 4 spacings out of the sphere, and 21
     # sphere samples by the seam (up to 5.1 spacings from the cloth)
     assert (
         shells.flaps == 1 and shells.shells == 1 and "hanging on closed pieces" in shells.summary()

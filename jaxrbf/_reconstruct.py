@@ -333,6 +333,26 @@ class Fitted(tuple):
         return self
 
 
+def _turned_out(n, flipped: bool, turned) -> np.ndarray:
+    """The normals `n` turned out as `jaxrbf._winding.oriented` found them, said on stderr."""
+    if flipped:
+        # every normal pointed into the solid: the fit, the volume constraints and the output's
+        # orientation want them out
+        n = -n
+        log(
+            "the normals point into the solid (the samples' winding number reads about -1/2 at "
+            "them, not +1/2): flipped, so that they point out"
+        )
+    if turned is not None and turned.any():
+        # parts wound the other way (an artist's model): turned out, part by part
+        n = np.where(turned[:, None], -n, n)
+        log(
+            f"{int(turned.sum()):,} samples on parts whose normals point into the solid (the "
+            "winding number reads about -1/2 at them): turned out"
+        )
+    return n
+
+
 def fit_surface_samples(
     source,
     normals=None,
@@ -502,7 +522,7 @@ def fit_surface_samples(
             frac, rebuild = near, True
     fitted_p, fitted_n, vc = p, n, None
     walls = (np.zeros((0, p.shape[1])), np.zeros((0, p.shape[1])))
-    open_pieces, every = walls, False
+    open_pieces, every, oriented = walls, False, False
     if volume:
         from ._winding import volume_constraints
 
@@ -519,7 +539,10 @@ def fit_surface_samples(
 
             # by default a noisy cloud is held to the noisy rule (True: the interpolating one)
             noisy = not exact and isinstance(shells, str)
-            found, areas, rim = open_shells(p, n, spacing, seed=seed, noisy=noisy)
+            found, areas, rim = open_shells(p, n, spacing, seed=seed, noisy=noisy, orient=True)
+            n, oriented = _turned_out(n, found.flipped, found.turned), True
+            if found.flipped or found.turned.any():
+                fitted_n, rebuild = n, True
             if found.mask.any():
                 log(found.summary())
                 open_pieces = (p[found.mask], n[found.mask])
@@ -546,24 +569,18 @@ def fit_surface_samples(
                 )
         else:
             vc = volume_constraints(
-                p, n, spacing, areas, rims=exact, close=True, bury=exact, orient=True, rim=rim
+                p,
+                n,
+                spacing,
+                areas,
+                rims=exact,
+                close=True,
+                bury=exact,
+                orient=not oriented,
+                rim=rim,
             )
-            if vc.flipped:
-                # every normal pointed into the solid: the fit, the volume constraints and the
-                # output's orientation want them out
-                n, rebuild = -n, True
-                log(
-                    "the normals point into the solid (the samples' winding number reads about "
-                    "-1/2 at them, not +1/2): flipped, so that they point out"
-                )
-            if vc.turned.any():
-                # parts wound the other way (an artist's model): turned out, sheet by sheet
-                n = np.where(vc.turned[:, None], -n, n)
-                rebuild = True
-                log(
-                    f"{int(vc.turned.sum()):,} samples on parts whose normals point into the "
-                    "solid (the winding number reads about -1/2 at them): turned out"
-                )
+            if vc.flipped or vc.turned.any():
+                n, rebuild = _turned_out(n, vc.flipped, vc.turned), True
             if verbose:
                 log(f"{vc.summary()} in {time.perf_counter() - t0:.1f} s")
             if vc.buried.any():

@@ -571,17 +571,7 @@ def volume_constraints(
     wtree = winding_tree(p, nrm, np.asarray(areas))
     flipped, turned = False, np.zeros(len(p), dtype=bool)
     if orient:
-        idx, w = sample_readings(p, wtree)  # `points_inward`'s, shared with `inward_samples`
-        flipped = bool(np.median(w) < -ORIENT_LEVEL)
-    if flipped:  # the areas do not depend on the normals' sign (the jump is |w+ - w-|)
-        nrm = -nrm
-        wtree = winding_tree(p, nrm, np.asarray(areas))
-        w = -w  # w is linear in the normals
-    if orient:
-        turned = inward_samples(p, nrm, spacing, wtree, tree, readings=(idx, w))
-    if turned.any():  # parts wound the other way, turned out one by one
-        nrm = np.where(turned[:, None], -nrm, nrm)
-        wtree = winding_tree(p, nrm, np.asarray(areas))
+        flipped, turned, nrm, wtree = oriented(p, nrm, spacing, np.asarray(areas), wtree, tree)
     bury = close if bury is None else bury
     buried = buried_samples(p, nrm, spacing, wtree, tree) if bury else np.zeros(len(p), dtype=bool)
     level = closing_level(p, nrm, spacing, wtree, tree, use=~buried)
@@ -702,7 +692,8 @@ class Shells(NamedTuple):
     """`shell_samples`' answer: `mask`, which samples lie on open shells; `pieces` and
     `shells`, how many pieces were tested and found open; `level`, the shells' median
     mid-value of w (NaN without any); `two_faced`, how many of the shells are two-faced
-    (`two_faced`); `flaps`, how many are open sheets hanging on closed pieces (`flap_samples`)."""
+    (`two_faced`); `flaps`, how many are open sheets hanging on closed pieces (`flap_samples`);
+    `flipped`, `turned`: how `open_shells(orient=True)` turned the normals out (`oriented`)."""
 
     mask: np.ndarray
     pieces: int
@@ -710,6 +701,8 @@ class Shells(NamedTuple):
     level: float
     two_faced: int = 0
     flaps: int = 0
+    flipped: bool = False
+    turned: np.ndarray | None = None
 
     def summary(self) -> str:
         two = (
@@ -938,13 +931,16 @@ def openings(points, label, rim, areas, spacing: float) -> np.ndarray:
     return spanned / np.maximum(np.bincount(label, weights=areas), 1e-300)
 
 
-def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = False):
+def open_shells(
+    points, normals, spacing: float, seed: int = 0, noisy: bool = False, orient: bool = False
+):
     """`shell_samples` of the samples, with the winding tree built for it, the samples'
     `calibrated_areas` and their `boundary_mask`, as `volume_constraints` computes them (pass
     them on): `(shells, areas, rim)`. `noisy` (a cloud the fit approximates, a scan): at
     `SHELL_LEVEL_NOISY`, without the rims' `openings` (there the boundary test also fires on
     gaps, and an opening is most often a part of a closed object that no view saw; nor two-faced
-    sheets, `two_faced`)."""
+    sheets, `two_faced`). `orient`: turn the normals out first (`oriented`; the result's
+    `flipped` and `turned` say how, and its mask is of the samples so oriented)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -952,6 +948,10 @@ def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = Fa
     rim = boundary_mask(p, nrm, tree=tree)
     areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
     wtree = winding_tree(p, nrm, areas)
+    flipped, turned = False, np.zeros(len(p), dtype=bool)
+    if orient:
+        # first: a part wound the other way reads as a sheet where it crosses another part
+        flipped, turned, nrm, wtree = oriented(p, nrm, spacing, areas, wtree, tree)
     found = shell_samples(
         p,
         nrm,
@@ -966,7 +966,27 @@ def open_shells(points, normals, spacing: float, seed: int = 0, noisy: bool = Fa
         faced=None if noisy else facing_pairs(p, nrm, spacing, tree),
         flaps=not noisy,
     )
-    return found, areas, rim
+    return found._replace(flipped=flipped, turned=turned), areas, rim
+
+
+def oriented(points, normals, spacing: float, areas, wtree: WindingTree, tree=None):
+    """`(flipped, turned, normals, wtree)`: the normals turned out where they point into the
+    solid, all of them (`points_inward`: `flipped`) and then part by part (`inward_samples`:
+    the mask `turned`), with the winding tree of the samples so oriented (`areas`: theirs, which
+    do not depend on the normals' sign)."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float)
+    idx, w = sample_readings(p, wtree)  # `points_inward`'s, shared with `inward_samples`
+    flipped = bool(np.median(w) < -ORIENT_LEVEL)
+    if flipped:
+        nrm = -nrm
+        wtree = winding_tree(p, nrm, areas)
+        w = -w  # w is linear in the normals
+    turned = inward_samples(p, nrm, spacing, wtree, tree, readings=(idx, w))
+    if turned.any():  # parts wound the other way, turned out one by one
+        nrm = np.where(turned[:, None], -nrm, nrm)
+        wtree = winding_tree(p, nrm, areas)
+    return flipped, turned, nrm, wtree
 
 
 def points_inward(points, wtree: WindingTree, tested: int = ORIENT_TESTED) -> bool:

@@ -750,6 +750,11 @@ def test_parts_wound_the_other_way_are_turned_out_part_by_part():
     assert np.all(vc.values[close & (near[1] < 2)] < 0) and np.all(
         vc.values[close & (near[1] >= 2)] > 0
     )
+    # open_shells turns them out first when asked (a part wound the other way reads as a sheet
+    # where it crosses another), and reads the pieces so oriented
+    shells = open_shells(p, n, spacing, orient=True)[0]
+    assert np.array_equal(shells.turned, turned) and not shells.flipped and not shells.mask.any()
+    assert not open_shells(p, n, spacing)[0].turned.any()  # not asked
     # a consistently wound input turns nothing
     right = np.where(wound[:, None], -n, n)
     wtree = winding_tree(p, right, calibrated_areas(p, right, spacing=spacing))

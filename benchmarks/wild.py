@@ -62,8 +62,11 @@ skipped, and the skipped ones are listed at the end):
    away (a bowl, a vase, a helmet: one opening a fifth of the surface), and
    `noisy-terrain-20k`, an open height field (TERRAIN_HILLS seeded Gaussian hills and dips on a
    ripple, the kind of an aerial or terrestrial terrain scan) whose samples are moved by Gaussian
-   noise of TERRAIN_NOISE = 0.25% of the diagonal (3-D, so jaxrbf sees a noisy cloud). The
-   reference is the made mesh.
+   noise of TERRAIN_NOISE = 0.25% of the diagonal (3-D, so jaxrbf sees a noisy cloud);
+   `wound-figure-10k`, closed parts that cross and touch, WOUND_PARTS of them with their faces
+   wound inside out (as an artist's model has them); `cloth-figure-10k`, a ball with a box on
+   it and two cloths running into it, one modelled as two coincident faces wound opposite
+   ways, the other as one face. The reference is the made mesh.
 
 Figures, per input and method:
 - with a reference (1, 2): wall time (s); Chamfer-L1 (% of the reference's bounding-box

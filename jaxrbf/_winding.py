@@ -966,7 +966,9 @@ def open_shells(
         faced=None if noisy else facing_pairs(p, nrm, spacing, tree),
         flaps=not noisy,
     )
-    return found._replace(flipped=flipped, turned=turned), areas, rim
+    # the open shells keep their normals as given (their slabs do not ask which way they face,
+    # and on an open sheet a concave stretch reads below 0 however it is wound)
+    return found._replace(flipped=flipped, turned=turned & ~found.mask), areas, rim
 
 
 def oriented(points, normals, spacing: float, areas, wtree: WindingTree, tree=None):

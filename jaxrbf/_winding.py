@@ -753,19 +753,25 @@ def flap_samples(points, normals, spacing: float, wtree: WindingTree, tree=None)
     """Which samples read as an open sheet on their own: w `JUMP_SPACINGS` spacings along and
     against the normal jumps by more than `SHELL_JUMP` with a mid-value below `FLAP_LEVEL` in
     magnitude (a sheet's +1/2 and -1/2), read at the samples `points_inward` reads
-    (`sample_readings`' subset) and carried to the rest from the nearest read. A piece that
+    (`_read_at`) and carried to the rest from the nearest read. A piece that
     reads closed as a whole can hold one: a cape, a skirt or a wing hanging on a figure, which
     closing would span with a balloon from its edge round to the body."""
     p = np.asarray(points, dtype=float)
-    nrm = np.asarray(normals, dtype=float)
-    idx, _ = sample_readings(p, wtree)
-    step = JUMP_SPACINGS * spacing * nrm[idx]
-    w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
-    w_out, w_in = w[: len(idx)], w[len(idx) :]
-    flap = (np.abs(w_in + w_out) / 2 < FLAP_LEVEL) & (w_in - w_out > SHELL_JUMP)
+    idx = _read_at(len(p))
+    mid, jump = _across(p, np.asarray(normals, dtype=float), idx, spacing, wtree)
+    flap = (np.abs(mid) < FLAP_LEVEL) & (jump > SHELL_JUMP)
     if len(idx) == len(p):
         return flap
     return flap[cKDTree(p[idx]).query(p, workers=-1)[1]]
+
+
+def _across(p, nrm, idx, spacing: float, wtree: WindingTree):
+    """`(mid, jump)` at the samples `idx`: w's mean and difference, read `JUMP_SPACINGS` spacings
+    against the normal (in) and along it (out): a closed surface's 1/2 and 1, a sheet's 0 and 1."""
+    step = JUMP_SPACINGS * spacing * nrm[idx]
+    w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
+    w_out, w_in = w[: len(idx)], w[len(idx) :]
+    return (w_in + w_out) / 2, w_in - w_out
 
 
 def two_faced(points, normals, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
@@ -814,9 +820,10 @@ def shell_samples(
     `areas`, so is one below `SHELL_OPENING_LEVEL` whose openings span `SHELL_OPENING` of its
     area or more (`openings`); given `faced` (`facing_pairs`), so is a piece more than
     `TWO_FACED_SHARE` of whose samples are on two-faced sheets, and such a sheet by itself;
-    with `flaps`, so are the open sheets that hang on pieces that read closed (`flap_samples`). Closing such a piece (a lid over a bowl or a vase, a lumpy cap
-    across a sheet that w never puts inside) invents a large surface that the input does not
-    have: it is better kept as it is, thickened (`jaxrbf._cavities.shell_slabs`).
+    with `flaps`, so are the open sheets that hang on pieces that read closed (`flap_samples`).
+    Closing such a piece (a lid over a bowl or a vase, a lumpy cap across a sheet that w never
+    puts inside) invents a large surface that the input does not have: it is better kept as it
+    is, thickened (`jaxrbf._cavities.shell_slabs`).
 
     Pieces of fewer than `SHELL_SMALL` samples, and those of fewer than `SHELL_MIN_SAMPLES` whose
     jump is unclear, go with the nearest piece judged. Cost: 2 x `SHELL_TESTED` evaluations of
@@ -855,24 +862,18 @@ def shell_samples(
         small = rest[np.bincount(bits)[bits] < SHELL_SMALL]
         by = cKDTree(p[hanging]).query(p[small], distance_upper_bound=SHELL_LINK * spacing)[0]
         hanging[small[np.isfinite(by)]] = True  # beside the sheets, not a gap elsewhere
+    # each piece's samples off the sheets, in order
+    free = np.flatnonzero(~hanging)
+    free = free[np.argsort(label[free], kind="stable")]
+    members = np.split(free, np.cumsum(np.bincount(label[free], minlength=len(count)))[:-1])
+    big = np.array([g for g in big if len(members[g])], dtype=np.int64)
     rng = np.random.default_rng(seed)
-    big = np.array([g for g in big if np.any(~hanging[label == g])], dtype=np.int64)
-    picks = [
-        rng.choice(
-            np.flatnonzero((label == g) & ~hanging),
-            min(int(np.sum((label == g) & ~hanging)), SHELL_TESTED),
-            replace=False,
-        )
-        for g in big
-    ]
+    picks = [rng.choice(members[g], min(len(members[g]), SHELL_TESTED), replace=False) for g in big]
     levels, doubled, whole = [], len(np.unique(label[part])), 0
     undecided = count < SHELL_SMALL
     if picks:
         idx = np.concatenate(picks)
-        step = JUMP_SPACINGS * spacing * nrm[idx]
-        w = winding_number(np.concatenate([p[idx] + step, p[idx] - step]), None, None, tree=wtree)
-        w_out, w_in = w[: len(idx)], w[len(idx) :]
-        mid, jump = (w_in + w_out) / 2, w_in - w_out
+        mid, jump = _across(p, nrm, idx, spacing, wtree)
         ends = np.cumsum([len(k) for k in picks])
         wide = None
         if rim is not None and areas is not None:
@@ -1009,10 +1010,15 @@ def sample_readings(points, wtree: WindingTree, tested: int = ORIENT_TESTED):
     """`(idx, w)`: the winding number at (up to `tested` of, a seeded random subset) the samples
     `points`, those of `wtree` (`points_inward`, `inward_samples`)."""
     p = np.asarray(points, dtype=float)
-    idx = np.arange(len(p))
-    if len(p) > tested:
-        idx = np.sort(np.random.default_rng(0).choice(len(p), tested, replace=False))
+    idx = _read_at(len(p), tested)
     return idx, np.asarray(winding_number(p[idx], None, None, tree=wtree))
+
+
+def _read_at(n: int, tested: int = ORIENT_TESTED) -> np.ndarray:
+    """The samples `sample_readings` reads: all `n`, or a seeded random `tested` of them."""
+    if n <= tested:
+        return np.arange(n)
+    return np.sort(np.random.default_rng(0).choice(n, tested, replace=False))
 
 
 #: `inward_samples`: w is read at the samples `points_inward` reads (`sample_readings`: up to

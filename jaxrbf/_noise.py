@@ -8,7 +8,9 @@ caller can decide whether the fit should approximate (`choose_smoothing`).
 The statistic, per point: its k nearest neighbours (the point included), a local frame from their
 covariance (the height axis along its smallest eigenvector, or along the given normal), and the
 least-squares quadric height field h(u, v) = a + b u + c v + d u^2 + e uv + f v^2 over the tangent
-coordinates (a parabola h(u) in 2-D). Its residual RMS with nu = k + 1 - 6 degrees of freedom,
+coordinates (a parabola h(u) in 2-D); with normals, a neighbourhood that reaches points facing
+the other way (the other face of a part a few spacings thin) is fitted again on the point's own
+face, and the smaller residual kept. Its residual RMS with nu = k + 1 - 6 degrees of freedom,
 sqrt(SSR / nu), estimates the noise's standard deviation across the surface: the quadric absorbs
 curvature, which a plane's residual would count as noise. It cannot absorb a sharp crease, both
 sides of a thin part or a coarse mesh's facet kinks; those only ever raise a point's residual,
@@ -170,13 +172,29 @@ def _pass(p, nrm, tree, at, k):
     """Per-point sigmas and reaches of the quadric fits of the `k` neighbours of points `at`, and
     their nearest-neighbour distances."""
     sig, reach, nearest = (np.empty(len(at)) for _ in range(3))
-    step = max(1, BUDGET // (k + 1))
+    # With normals, a neighbourhood that reaches the other face of a part thinner than a few
+    # spacings (or of a doubled sheet) reads noise of half its thickness everywhere on it: there
+    # the point's own sheet is fitted too, the nearest k facing its way among 2k + 1, and the
+    # smaller residual is kept. Noise raises both; where the faces are only flipped at random,
+    # the own sheet is half as dense and the first fit the fairer one.
+    wide = k + 1 if nrm is None else min(2 * k + 1, len(p))
+    step = max(1, BUDGET // wide)
     for s in range(0, len(at), step):
         q = at[s : s + step]
-        dist, idx = tree.query(p[q], k=k + 1, workers=-1)
+        dist, idx = tree.query(p[q], k=wide, workers=-1)
         nearest[s : s + len(q)] = dist[:, 1]
-        part = _local_sigma(p[idx], None if nrm is None else nrm[q])
-        sig[s : s + len(q)], reach[s : s + len(q)] = part
+        near = idx[:, : k + 1]
+        sg, rc = _local_sigma(p[near], None if nrm is None else nrm[q])
+        if nrm is not None:
+            facing = np.einsum("bkd,bd->bk", nrm[idx], nrm[q]) > 0
+            mixed = np.flatnonzero(~np.all(facing[:, : k + 1], axis=1))
+            if len(mixed):
+                order = np.argsort(~facing[mixed], axis=1, kind="stable")[:, : k + 1]
+                own = np.take_along_axis(idx[mixed], order, axis=1)
+                sg2, rc2 = _local_sigma(p[own], nrm[q[mixed]])
+                better = sg2 < sg[mixed]
+                sg[mixed[better]], rc[mixed[better]] = sg2[better], rc2[better]
+        sig[s : s + len(q)], reach[s : s + len(q)] = sg, rc
     return sig, reach, nearest
 
 
@@ -209,8 +227,9 @@ def estimate_noise(
 
     **Arguments:**
     - `points`: (n, d) points, d = 2 or 3; `normals`: (n, d) or None. Given normals set each
-      local fit's height axis (their sign does not matter); without them it is the smallest
-      principal axis of the neighbourhood.
+      local fit's height axis and keep each fit to the neighbours that face the point's way
+      (its own sheet, not the other face of a thin part); without them the height axis is the
+      smallest principal axis of the neighbourhood.
     - `k`: neighbours per local quadric fit (at least 8 in 3-D, 5 in 2-D).
     - `sample`: fit at most this many points, chosen at random (None: all of them).
     - `threshold`: `noisy` when sigma exceeds this many median point spacings.

@@ -210,6 +210,31 @@ def test_noise_estimate_ignores_creases_and_sees_misregistration():
     assert two.noisy, two
 
 
+def test_noise_estimate_with_normals_keeps_to_each_face_of_a_thin_part():
+    from jaxrbf._noise import estimate_noise
+
+    # A closed plate 1.5 spacings thick: 12 neighbours reach the other face everywhere, so a
+    # fit across both faces reads half the thickness as noise (0.55 spacings before).
+    rng = np.random.default_rng(5)
+    m = 12000
+    xy = rng.uniform(-1, 1, (m, 2))
+    spacing = 0.5 * np.sqrt(8 / m)
+    half = 0.75 * spacing
+    up = rng.random(m) < 0.5
+    p = np.column_stack([xy, np.where(up, half, -half)])
+    n = np.zeros_like(p)
+    n[:, 2] = np.where(up, 1.0, -1.0)
+    assert estimate_noise(p).noisy  # without normals the faces cannot be told apart
+    thin = estimate_noise(p, n)
+    assert not thin.noisy and thin.relative_spacing < 0.01, thin
+    noisy = p + 0.2 * thin.spacing * rng.standard_normal(p.shape)
+    assert estimate_noise(noisy, n).noisy  # ... and noise is seen through them
+    # normals flipped at random are no thin part: the first fit stands
+    flips = np.where(rng.random(m) < 0.5, -1.0, 1.0)[:, None]
+    flat = np.column_stack([xy, np.zeros(m)])
+    assert not estimate_noise(flat, n * flips).noisy
+
+
 def test_noise_estimate_widens_for_large_noise_and_2d():
     from jaxrbf._noise import estimate_noise
 

@@ -16,7 +16,7 @@ from ._constraints import DEFAULT_OFFSET, Constraints, log
 from ._errors import InputError
 from ._fit import choose_method, fit
 from ._model import AbstractModel, n_poly
-from ._prepare import auto_flag, check_not_flat, diagonal
+from ._prepare import auto_flag, check_not_flat, consistent_winding, diagonal
 from .objectives import point_spacing
 
 #: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
@@ -182,6 +182,12 @@ def _surface(
     if isinstance(data, io.Mesh):
         v, f = data.vertices, data.faces
         check_not_flat(v, f"vertices of {name}")
+        f, turned = consistent_winding(v, f)
+        if verbose and turned:
+            log(
+                f"{name}: {turned:,} of {len(f):,} faces were wound against their neighbours; "
+                "turned so that each connected piece is wound one way"
+            )
         k = points if points is not None else min(len(v), DEFAULT_POINTS)
         if verbose and points is None and len(v) > DEFAULT_POINTS:
             log(

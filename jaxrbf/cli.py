@@ -525,7 +525,9 @@ def _log_topology(source, mesh) -> None:
     if source[1] is None and isinstance(source[0], (str, os.PathLike)):
         data = io.read_input(source[0])
         if isinstance(data, io.Mesh):
-            loops = boundary_loops(data)
+            # vertices with equal coordinates are one (a soup repeats them face by face)
+            _, same = np.unique(data.vertices, axis=0, return_inverse=True)
+            loops = boundary_loops(same.reshape(-1)[data.faces])
             log(
                 f"input mesh has {loops} boundary loop{'s' if loops != 1 else ''}"
                 + (" (holes, filled by the implicit surface)" if loops else "")

@@ -286,3 +286,57 @@ def test_progress_bars_follow_one_convention(capsys):
     captured = capsys.readouterr()
     assert "asked for" in captured.err and "hidden" not in captured.err
     assert captured.out == ""
+
+
+def _soup(mesh, turn):
+    """`mesh` as a polygon soup (each face its own three vertices), the faces `turn` wound the
+    other way."""
+    v = np.asarray(mesh.vertices)[np.asarray(mesh.faces)].reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    f[turn] = f[turn][:, ::-1]
+    return v, f
+
+
+def test_consistent_winding_turns_faces_against_their_neighbours():
+    import trimesh
+
+    from jaxrbf._prepare import consistent_winding
+
+    rng = np.random.default_rng(0)
+    ball = trimesh.creation.icosphere(3)  # outward
+    box = trimesh.creation.box([0.5, 0.5, 0.5])
+    box.apply_translation([3.0, 0.0, 0.0])
+    m1, m2 = len(ball.faces), len(box.faces)
+    # the ball: 40% of its faces turned; the box: wound inside out, 3 of its 12 faces turned back
+    v1, f1 = _soup(ball, rng.random(m1) < 0.4)
+    turn = np.ones(m2, dtype=bool)
+    turn[:3] = False
+    v2, f2 = _soup(box, turn)
+    v, f = np.vstack([v1, v2]), np.vstack([f1, f2 + len(v1)])
+    out, turned = consistent_winding(v, f)
+    normal = np.cross(v[out[:, 1]] - v[out[:, 0]], v[out[:, 2]] - v[out[:, 0]])
+    centre = np.where(np.arange(len(f))[:, None] < m1, 0.0, [3.0, 0.0, 0.0])
+    outward = np.sum(normal * (v[out].mean(axis=1) - centre), axis=1) > 0
+    # each piece takes the winding of most of its area: the ball outward, the box inward
+    assert outward[:m1].all() and not outward[m1:].any()
+    assert turned == int(np.sum(f1 != out[:m1]) / 2) + 3
+    same, none = consistent_winding(ball.vertices, ball.faces)
+    assert none == 0 and np.array_equal(same, ball.faces)
+
+
+def test_a_soup_wound_at_random_is_reconstructed(tmp_path, capsys):
+    """A sphere as a polygon soup with a third of its faces wound the other way: the command
+    line turns them (and says so) and meshes the sphere."""
+    import trimesh
+
+    rng = np.random.default_rng(1)
+    ball = trimesh.creation.icosphere(3)
+    v, f = _soup(ball, rng.random(len(ball.faces)) < 0.33)
+    src, out = tmp_path / "soup.obj", tmp_path / "out.ply"
+    jaxrbf.io.write_mesh(src, jaxrbf.io.Mesh(v, f))
+    code, _, err = run(capsys, "reconstruct", src, "-o", out, "--points", 1500, "--resolution", 48)
+    assert code == 0, err
+    assert "faces were wound against their neighbours" in err
+    assert "input mesh has 0 boundary loops" in err  # a soup is no mesh of 1,280 holes
+    r = np.linalg.norm(jaxrbf.io.read_mesh(out).vertices, axis=1)
+    assert np.abs(r - 1).max() < 0.03, np.abs(r - 1).max()

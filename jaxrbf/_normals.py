@@ -195,54 +195,19 @@ def _fill_doubtful(normals, r, c) -> np.ndarray:
     return out
 
 
-def estimate_normals(points, k: int | None = None, verbose: bool = False):
-    """Oriented unit normals of a bare 3-D point cloud.
-
-    **Arguments:**
-    - `points`: (n, 3) points sampled on one or more closed surfaces.
-    - `k`: neighbours for each PCA (default: `default_k(n)`, 2 log2 n within 8..30).
-    - `verbose`: print the report to stderr.
-
-    **Returns:** `(normals, report)`: (n, 3) unit normals, pointing out of each connected
-    component, and a `NormalsReport`.
-
-    Exact duplicate points share one normal. Points on one plane get the plane's normal (its
-    side is arbitrary but consistent). Nested surfaces (a hollow shell's inner wall) are turned
-    outward too, which is wrong for them: give normals for such input.
-    """
+def _oriented(p, normals, dist, idx, k: int, refill: bool):
+    """The unoriented `normals` of the distinct points `p` (their `k` + 1 nearest: `dist`,
+    `idx`) oriented along a minimum spanning tree, each component turned outward, then the
+    neighbour vote (`_vote`) and, with `refill`, the doubtful ones refilled from their neighbours
+    (`_fill_doubtful`): `(normals, unsure, components)`."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import (
         breadth_first_order,
         connected_components,
         minimum_spanning_tree,
     )
-    from scipy.spatial import cKDTree
 
-    p_all = _check_points(points)
-    # Exact duplicates: work on the distinct points, copy back at the end.
-    p, inverse = np.unique(p_all, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
     n_pts = len(p)
-    if k is None:
-        k = default_k(n_pts)
-    k = int(k)
-    if k < 3:
-        raise InputError(f"`k` must be at least 3 neighbours for a tangent plane, got {k}")
-    if n_pts < k + 1:
-        dup = (
-            f" ({len(p_all) - n_pts:,} of the {len(p_all):,} are duplicates)"
-            if n_pts < len(p_all)
-            else ""
-        )
-        raise InputError(
-            f"there are only {n_pts:,} distinct points{dup}; normal estimation fits a plane to "
-            f"each point's {k} nearest neighbours, so it needs at least {k + 1}: give more "
-            "points (in Python, or lower `k`)"
-        )
-
-    tree = cKDTree(p)
-    dist, idx = tree.query(p, k=k + 1, workers=-1)  # idx[:, 0] is the point itself
-    normals = _one_sheet(p, idx)
 
     # Riemannian graph over the nearest neighbours (fewer than the PCA's: short edges only).
     kg = min(k, 10)
@@ -252,7 +217,6 @@ def estimate_normals(points, k: int | None = None, verbose: bool = False):
     e = p[cols] - p[rows]
     length = np.linalg.norm(e, axis=1)
     e = e / np.maximum(length, 1e-300)[:, None]
-    raw = normals
     ni, nj = normals[rows], normals[cols]
     parallel = 1.0 - np.abs(np.einsum("ij,ij->i", ni, nj))
     across = 0.5 * (np.abs(np.einsum("ij,ij->i", e, ni)) + np.abs(np.einsum("ij,ij->i", e, nj)))
@@ -306,9 +270,75 @@ def estimate_normals(points, k: int | None = None, verbose: bool = False):
     )
     r, c = _both_ways(vr, vc, along <= CROSS)
     normals, _ = _vote(normals, r, c)
-    normals = _fill_doubtful(normals, r, c)
+    return (_fill_doubtful(normals, r, c) if refill else normals), unsure, n_comp
+
+
+def estimate_normals(points, k: int | None = None, verbose: bool = False):
+    """Oriented unit normals of a bare 3-D point cloud.
+
+    **Arguments:**
+    - `points`: (n, 3) points sampled on one or more closed surfaces.
+    - `k`: neighbours for each PCA (default: `default_k(n)`, 2 log2 n within 8..30).
+    - `verbose`: print the report to stderr.
+
+    **Returns:** `(normals, report)`: (n, 3) unit normals, pointing out of each connected
+    component, and a `NormalsReport`.
+
+    Exact duplicate points share one normal. Points on one plane get the plane's normal (its
+    side is arbitrary but consistent). Nested surfaces (a hollow shell's inner wall) are turned
+    outward too, which is wrong for them: give normals for such input.
+    """
+    from scipy.spatial import cKDTree
+
+    p_all = _check_points(points)
+    # Exact duplicates: work on the distinct points, copy back at the end.
+    p, inverse = np.unique(p_all, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    n_pts = len(p)
+    if k is None:
+        k = default_k(n_pts)
+    k = int(k)
+    if k < 3:
+        raise InputError(f"`k` must be at least 3 neighbours for a tangent plane, got {k}")
+    if n_pts < k + 1:
+        dup = (
+            f" ({len(p_all) - n_pts:,} of the {len(p_all):,} are duplicates)"
+            if n_pts < len(p_all)
+            else ""
+        )
+        raise InputError(
+            f"there are only {n_pts:,} distinct points{dup}; normal estimation fits a plane to "
+            f"each point's {k} nearest neighbours, so it needs at least {k + 1}: give more "
+            "points (in Python, or lower `k`)"
+        )
+
+    tree = cKDTree(p)
+    dist, idx = tree.query(p, k=k + 1, workers=-1)  # idx[:, 0] is the point itself
+    raw = _one_sheet(p, idx)
+    normals, unsure, n_comp = _oriented(p, raw, dist, idx, k, refill=True)
     flipped = float(np.mean(np.einsum("ij,ij->i", normals, raw) < 0))
     report = NormalsReport(k=k, flipped=flipped, unsure=unsure, components=n_comp, n=len(p_all))
     if verbose:
         print(f"jaxrbf: {report.summary()}", file=sys.stderr, flush=True)
     return normals[inverse], report
+
+
+def orient_normals(points, normals, k: int | None = None) -> np.ndarray:
+    """`normals` (n, 3) of the 3-D `points`, each turned (its sign only) so that all agree
+    along the surface and point out of each connected component, as `estimate_normals` orients
+    its own: for normals that came with a cloud but point either way (an unoriented estimate,
+    a soup's faces wound at random). Their directions are kept."""
+    from scipy.spatial import cKDTree
+
+    p_all = _check_points(points)
+    nrm = np.asarray(normals, dtype=float).reshape(p_all.shape)
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    p, first, inverse = np.unique(p_all, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    k = min(default_k(len(p)) if k is None else int(k), len(p) - 1)
+    if k < 3:
+        return nrm
+    dist, idx = cKDTree(p).query(p, k=k + 1, workers=-1)
+    out, _, _ = _oriented(p, nrm[first], dist, idx, k, refill=False)
+    sign = np.where(np.einsum("ij,ij->i", out[inverse], nrm) < 0, -1.0, 1.0)
+    return nrm * sign[:, None]

@@ -546,6 +546,15 @@ def fit_surface_samples(
             # by default a noisy cloud is held to the noisy rule (True: the interpolating one)
             noisy = not exact and isinstance(shells, str)
             found, areas, rim = open_shells(p, n, spacing, seed=seed, noisy=noisy, orient=True)
+            if found.reoriented is not None and found.reoriented.any():
+                n = np.where(found.reoriented[:, None], -n, n)
+                fitted_n, rebuild = n, True
+                log(
+                    f"{int(found.reoriented.sum()):,} samples turned on pieces whose normals "
+                    "faced both ways at one place (a soup wound at random, or normals that point "
+                    "either way): their signs made to agree along the surface, as for a bare "
+                    "cloud"
+                )
             n, oriented = _turned_out(n, found.flipped, found.turned), True
             if found.flipped or found.turned.any():
                 fitted_n, rebuild = n, True

@@ -203,3 +203,19 @@ def test_noisy_scans_orient_as_well_as_clean_ones():
     est, rep = jaxrbf.estimate_normals(p)
     wrong, _ = _scores(est, true)
     assert wrong < 0.002, (wrong, rep.summary())
+
+
+def test_given_normals_that_point_either_way_are_oriented_and_keep_their_directions():
+    from jaxrbf._normals import orient_normals
+
+    a, ta = sphere(800, centre=(-1.5, 0, 0))
+    b, tb = sphere(800, 0.5, centre=(1.5, 0, 0))
+    p, true = np.vstack([a, b]), np.vstack([ta, tb])
+    # tilted a little (a given normal is data: its direction is kept), then flipped at random
+    rng = np.random.default_rng(3)
+    given = true + 0.1 * rng.standard_normal(true.shape)
+    given /= np.linalg.norm(given, axis=1, keepdims=True)
+    given *= np.where(rng.random(len(p)) < 0.5, -1.0, 1.0)[:, None]
+    out = orient_normals(p, given)
+    assert _scores(out, true)[0] == 0.0
+    np.testing.assert_allclose(np.abs(np.sum(out * given, axis=1)), 1.0)

@@ -961,3 +961,21 @@ def test_small_open_pieces_beside_a_closed_one_are_read_on_their_own():
     p, n = np.concatenate(parts), np.concatenate(normals)
     found = open_shells(p, n, point_spacing(p))[0]
     assert found.mask[3000:].all() and not found.mask[:3000].any()
+
+
+def test_a_cloud_whose_normals_point_either_way_gives_the_solid(capsys):
+    # before: every sample faced both ways at once, the sphere read as a two-faced sheet and
+    # came out a thin slab (two surfaces, r = 1 +- a spacing)
+    p = _sphere(3000)
+    flip = np.where(np.random.default_rng(4).random(len(p)) < 0.5, -1.0, 1.0)[:, None]
+    model, samples, normals = fit_surface_samples(p, p * flip)
+    assert "faced both ways at one place" in capsys.readouterr().err
+    assert np.all(np.sum(normals * samples, axis=1) > 0)
+    assert float(model(np.zeros((1, 3)))[0]) < 0
+    r = np.linalg.norm(mesh_fit(model, samples, resolution=48).vertices, axis=1)
+    assert np.abs(r - 1).max() < 0.01
+    # the facing test that decided it: most samples have neighbours facing the other way
+    # beside them, and none on the sphere as given
+    spacing = winding.point_spacing(p)
+    assert np.mean(winding.facing_beside(p, p * flip, spacing) >= 2) > 0.5
+    assert not winding.facing_beside(p, p, spacing).any()

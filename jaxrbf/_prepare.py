@@ -225,3 +225,39 @@ def consistent_winding(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndar
     out = f.copy()
     out[turn] = out[turn][:, ::-1]
     return out, int(turn.sum())
+
+
+def merged_duplicates(points: np.ndarray, normals: np.ndarray, tol: float):
+    """Oriented samples with each group of points within `tol` of one another made one:
+    `(points, normals, merged, dropped)`. A mesh's vertices exported with their normals repeat
+    a vertex once per face along a crease or a seam, each copy with its own face's normal (the
+    teapot's 393 seam vertices): where no two normals of a group face opposite ways (cosine
+    below -1/2) the group keeps its first point with the mean of its normals (a crease's
+    outward bisector); where two do, one place is said to face both ways (the edge of a sheet
+    sampled on both faces) and the group is dropped, its neighbours standing for the surface
+    there. `merged`, `dropped`: how many points were given up each way. `normals` unit."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = duplicate_pairs(points, tol)
+    if not len(pairs):
+        return points, normals, 0, 0
+    n = len(points)
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    size = np.bincount(label)
+    opposed = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < -0.5
+    bad = np.zeros(len(size), dtype=bool)
+    bad[label[pairs[opposed, 0]]] = True
+    total = np.stack([np.bincount(label, weights=normals[:, k]) for k in range(3)], axis=1)
+    length = np.linalg.norm(total, axis=1)
+    bad |= length < 1e-9 * size
+    first = np.full(len(size), n)
+    np.minimum.at(first, label, np.arange(n))
+    keep = (np.arange(n) == first[label]) & ~bad[label]
+    out = normals.copy()
+    grouped = keep & (size[label] > 1)
+    out[grouped] = total[label[grouped]] / length[label[grouped], None]
+    dropped = int(np.sum(size[bad]))
+    merged = n - int(keep.sum()) - dropped
+    return points[keep], out[keep], merged, dropped

@@ -16,7 +16,13 @@ from ._constraints import DEFAULT_OFFSET, Constraints, log
 from ._errors import InputError
 from ._fit import choose_method, fit
 from ._model import AbstractModel, n_poly
-from ._prepare import auto_flag, check_not_flat, consistent_winding, diagonal
+from ._prepare import (
+    auto_flag,
+    check_not_flat,
+    consistent_winding,
+    diagonal,
+    merged_duplicates,
+)
 from .objectives import point_spacing
 
 #: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
@@ -200,6 +206,18 @@ def _surface(
         return p, n, diagonal(data.vertices), False, True
     noisy = None
     given = data.normals is not None and mode != "estimate"
+    if given and data.points.shape[1] == 3:
+        from ._constraints import MERGE_TOL, checked_samples
+
+        p, n = checked_samples(data.points, data.normals)
+        p, n, merged, dropped = merged_duplicates(p, n, MERGE_TOL * diagonal(p))
+        if merged or dropped:
+            log(
+                f"{name}: {merged + dropped:,} repeated points (a mesh's vertices exported once "
+                f"per face): {merged:,} merged into the first of each, their normals averaged"
+                + (f"; {dropped:,} dropped where the copies face opposite ways" if dropped else "")
+            )
+            data = io.PointCloud(p, n)
     if isinstance(remove_outliers, str) and remove_outliers == "auto":
         # A scan as it comes: strays and noise are dealt with without asking. A bare cloud
         # always loses its strays (they mislead the normal estimation); one with normals only

@@ -340,3 +340,35 @@ def test_a_soup_wound_at_random_is_reconstructed(tmp_path, capsys):
     assert "input mesh has 0 boundary loops" in err  # a soup is no mesh of 1,280 holes
     r = np.linalg.norm(jaxrbf.io.read_mesh(out).vertices, axis=1)
     assert np.abs(r - 1).max() < 0.03, np.abs(r - 1).max()
+
+
+def test_repeated_points_with_their_own_normals_are_merged_not_refused(tmp_path, capsys):
+    """A mesh's vertices exported with normals repeat a vertex once per face along its creases
+    and seams: such a cloud gives a surface (before: 'their normals disagree', exit 2)."""
+    from jaxrbf._reconstruct import fit_surface_samples
+
+    p, n = sphere(1500)
+    rng = np.random.default_rng(2)
+    crease = rng.choice(1500, 100, replace=False)
+    tilt = np.cross(n[crease], rng.standard_normal((100, 3)))
+    tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
+    copy = np.cos(1.2) * n[crease] + np.sin(1.2) * tilt  # 69 degrees off: cosine 0.36
+    edge = np.setdiff1d(np.arange(1500), crease)[:10]  # copies facing the other way
+    pts = np.vstack([p, p[crease], p[edge]])
+    nrm = np.vstack([n, copy, -n[edge]])
+    src, out = tmp_path / "verts.ply", tmp_path / "out.ply"
+    jaxrbf.io.write_points(src, pts, nrm)
+    code, _, err = run(capsys, "reconstruct", src, "-o", out, "--resolution", 48)
+    assert code == 0, err
+    assert "120 repeated points" in err and "100 merged" in err and "20 dropped" in err
+    r = np.linalg.norm(jaxrbf.io.read_mesh(out).vertices, axis=1)
+    assert np.abs(r - 1).max() < 0.02
+    _, samples, normals = fit_surface_samples(pts, nrm)
+    assert len(samples) == 1490
+    merged = np.isin(samples, p[crease]).all(axis=1)
+    assert merged.sum() == 100
+    # a crease's vertex gets the mean of its faces' normals
+    mean = n[crease] + copy
+    mean /= np.linalg.norm(mean, axis=1, keepdims=True)
+    order = [int(np.flatnonzero((p[crease] == s).all(axis=1))[0]) for s in samples[merged]]
+    np.testing.assert_allclose(normals[merged], mean[order], atol=1e-12)

@@ -4,19 +4,33 @@ Every problem with a file or an array raises `jaxrbf.InputError` with a message 
 file (or argument), says what is wrong and how to fix it. Writers are atomic: the output appears
 only once it is complete, and an existing file is left untouched when writing fails.
 
-- `.obj` `.stl` `.off`: mesh (`write_mesh`).
+- `.stl` `.off`: mesh (`write_mesh`).
+- `.obj`: mesh; one with `v` lines but no faces is a point cloud for `read_input` (normals from
+  its `vn` lines when there is one per vertex) (`write_mesh`).
 - `.ply`: mesh if it has faces, else point cloud: x y z, optional nx ny nz (`write_mesh`,
   `write_points`).
-- `.xyz` `.txt`: point cloud, 3 columns (x y z) or 6 (x y z nx ny nz) (`write_points`: `.xyz`).
+- `.xyz` `.txt`: point cloud, one point per line: x y z first, then any further columns
+  (colours, intensity, normals in any of the layouts scanners and CloudCompare write). Normals
+  are the first triple of consecutive columns, at column offset 3, 4, 6 or 7 (0-based), whose
+  columns each hold some negative values (colours, intensities and counts never do) and that
+  has no row of zeros; the other columns are ignored (details: `read_points`). Whitespace,
+  commas or semicolons separate the numbers; `#` starts a comment; one leading header line
+  without numbers (`x,y,z`, `//X Y Z ...`) is skipped (`write_points`: `.xyz`, x y z
+  [nx ny nz]).
+- `.pts` (Leica PTS): point cloud; the first line is the point count, then x y z
+  [intensity [r g b]] per line (never normals).
 - `.npz`: `points` (+ `normals`): point cloud; `vertices` + `faces`: mesh (`write_points`,
   `write_mesh`; `write_polylines` writes `contour_0`, `contour_1`, ...).
-- `.csv` `.npy`: 2-D polyline, two columns x, y (`write_polylines`: `.csv`).
+- `.csv`: 3 or more columns: point cloud, read as `.xyz`; 2 columns (x, y): 2-D polyline
+  (`write_polylines`: `.csv`, `contour,x,y`).
+- `.npy`: 2-D polyline, an (n, 2) array.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import secrets
 import warnings
 import zipfile
@@ -52,14 +66,15 @@ __all__ = [
 ]
 
 SUPPORTED: dict[str, str] = {
-    ".obj": "mesh",
+    ".obj": "mesh or point cloud",
     ".ply": "mesh or point cloud",
     ".stl": "mesh",
     ".off": "mesh",
     ".xyz": "point cloud",
     ".txt": "point cloud",
+    ".pts": "point cloud",
     ".npz": "point cloud or mesh",
-    ".csv": "polyline",
+    ".csv": "polyline or point cloud",
     ".npy": "polyline",
 }
 """Input extensions and what they hold (used in error messages)."""
@@ -68,7 +83,7 @@ MESH_OUTPUTS = (".ply", ".obj", ".stl", ".off", ".npz")
 POINT_OUTPUTS = (".ply", ".xyz", ".npz")
 POLYLINE_OUTPUTS = (".csv", ".npz")
 _MESH_INPUTS = (".obj", ".ply", ".stl", ".off", ".npz")
-_POINT_INPUTS = (".ply", ".xyz", ".txt", ".npz")
+_POINT_INPUTS = (".ply", ".xyz", ".txt", ".pts", ".csv", ".npz")
 _POLYLINE_INPUTS = (".csv", ".npy")
 
 
@@ -654,8 +669,9 @@ def _trimesh_load(p: str, ext: str):
         ) from e
 
 
-def _read_obj(p: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """Vertices (the `v` lines, in order) and fan-triangulated faces of a Wavefront OBJ.
+def _read_obj(p: str, vn: list | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Vertices (the `v` lines, in order) and fan-triangulated faces of a Wavefront OBJ; the
+    words of its `vn` lines are appended to `vn` when given (see `_obj_normals`).
 
     Parsed here rather than by trimesh, which splits vertices along texture seams and drops
     unreferenced ones.
@@ -674,6 +690,8 @@ def _read_obj(p: str) -> tuple[np.ndarray, np.ndarray | None]:
                     if len(w) < 4:
                         raise ValueError("a `v` line needs 3 coordinates")
                     verts.append(w[1:4])
+                elif vn is not None and line.startswith(("vn ", "vn\t")):
+                    vn.append(line.split()[1:4])
                 elif line.startswith(("f ", "f\t")):
                     try:
                         idx = [int(w.split("/", 1)[0]) for w in line.split()[1:]]
@@ -690,7 +708,7 @@ def _read_obj(p: str) -> tuple[np.ndarray, np.ndarray | None]:
         if lineno:
             why = f"line {lineno}: {_short(e)}"
         else:  # a coordinate that is not a number: find its line
-            why = f"line {_first_bad_v_line(p)}: a vertex coordinate is not a number"
+            why = f"line {_first_bad_obj_line(p, 'v')}: a vertex coordinate is not a number"
         raise InputError(
             f"'{p}' could not be read as OBJ: {why}; check that the file is complete and in "
             "that format"
@@ -710,15 +728,33 @@ def _has_data_lines(p: str) -> bool:
         return any(line.split("#", 1)[0].strip() for line in fh)
 
 
-def _first_bad_v_line(p: str) -> int:
+def _first_bad_obj_line(p: str, key: str) -> int:
+    """The first `key` line (`v`, `vn`) of an OBJ without 3 numbers (1-based; 0: none)."""
     with open(p, encoding="utf-8", errors="replace") as fh:
         for lineno, line in enumerate(fh, 1):
-            if line.startswith(("v ", "v\t")):
+            if line.startswith((key + " ", key + "\t")):
                 try:
-                    [float(w) for w in line.split()[1:4]]
+                    if len([float(w) for w in line.split()[1:4]]) < 3:
+                        return lineno
                 except ValueError:
                     return lineno
     return 0
+
+
+def _obj_normals(p: str, words: list[list[str]], n: int) -> np.ndarray | None:
+    """The normals of an OBJ point cloud of `n` vertices from the words of its `vn` lines: one
+    per vertex, in order, else none."""
+    if len(words) != n:
+        return None
+    try:
+        if any(len(w) != 3 for w in words):
+            raise ValueError
+        return np.array(words, dtype=np.float64)
+    except ValueError as e:
+        raise InputError(
+            f"'{p}' could not be read as OBJ: line {_first_bad_obj_line(p, 'vn')}: a normal "
+            "('vn nx ny nz') needs 3 numbers"
+        ) from e
 
 
 def _load_geometry(p: str, ext: str):
@@ -923,6 +959,135 @@ def _bad_line(p: str, delimiter: str | None, skip: int) -> str:
     return "every line must hold the same number of numbers"
 
 
+#: What separates the words of a line when looking for a header or a point count.
+_SEPARATORS = re.compile(r"[\s,;]+")
+#: Header names of normal columns (lower case), as CloudCompare, PCL and Open3D write them.
+_NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
+#: Where a point list's normals may start (0-based columns): x y z nx ny nz ..., x y z i nx ny nz,
+#: x y z r g b nx ny nz, x y z i r g b nx ny nz.
+_NORMAL_OFFSETS = (3, 4, 6, 7)
+
+
+@dataclass(frozen=True)
+class _TextLayout:
+    """The start of a text point list."""
+
+    skip: int  # lines before the data (comments, a header, a .pts count), for np.loadtxt
+    delimiter: str | None  # what separates the numbers; None: whitespace
+    header: tuple[str, ...] | None  # the header's words, lower case
+    width: int | None  # numbers on the first data line; None: no data
+    count: tuple[int, int] | None  # a .pts file's point count and its line
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
+def _text_layout(p: str, what: str, count_line: bool = False) -> _TextLayout:
+    """Read the first lines of a text point list: one leading line without any number is a
+    header (`x,y,z`, `//X Y Z`), a leading single whole number is the point count (`count_line`: .pts),
+    and the first data line says what separates the numbers (a semicolon, else a comma, else
+    whitespace). Blank lines and `#` comments are passed over."""
+    with open(p, "rb") as fh:
+        if _binary(p, fh.read(4096)):
+            raise InputError(f"'{p}' could not be read as {what}: it holds binary data, not text")
+    skip, header, count = 0, None, None
+    with open(p, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            words = [w for w in _SEPARATORS.split(text) if w]
+            if not skip and not any(_is_number(w) for w in words):
+                skip, header = (
+                    lineno,
+                    tuple(w.lower() for w in _SEPARATORS.split(text.lstrip("/")) if w),
+                )
+                continue
+            if not skip and count_line and len(words) == 1 and words[0].isdigit():
+                skip, count = lineno, (int(words[0]), lineno)
+                continue
+            delimiter = ";" if ";" in text else "," if "," in text else None
+            return _TextLayout(skip, delimiter, header, len(text.split(delimiter)), count)
+    return _TextLayout(skip, None, header, None, count)
+
+
+def _normal_columns(data: np.ndarray, header: tuple[str, ...] | None) -> int | None:
+    """The first column of a point list's normals (see `read_points`), or None.
+
+    Columns a header names nx ny nz (or normal_x ...) are the normals. Otherwise a triple of
+    consecutive columns at `_NORMAL_OFFSETS` looks like normals when each of its columns holds
+    some negative values (colours, intensities and counts never do), or when some column does
+    and every row has unit length (normals facing one half-space, e.g. a terrain's). Of those,
+    the first is taken, with two preferences: one whose (nonzero) rows have unit length goes
+    before one whose rows do not, so that a triple straddling two groups of signed columns
+    (a signed scalar then nx ny nz, or nx ny nz with a row of zeros then a signed scalar) is
+    not taken for the normals; then one without a row of zeros before one with (taken only so
+    that such rows are refused as zero-length normals, rather than all the normals dropped
+    unsaid). Rows with NaN or infinity are refused later, not weighed here."""
+    width = data.shape[1]
+    if header is not None and len(header) == width:
+        for names in _NORMAL_NAMES:
+            for k in range(3, width - 2):
+                if header[k : k + 3] == names:
+                    return k
+    best, best_rank = None, None
+    for k in _NORMAL_OFFSETS:
+        if k + 3 > width:
+            break
+        t = data[:, k : k + 3]
+        signed = (t < 0).any(axis=0)
+        zero = ~(t != 0).any(axis=1)
+        length = np.linalg.norm(t[~zero & np.isfinite(t).all(axis=1)], axis=1)
+        unit = bool(len(length)) and bool(np.all(np.abs(length - 1) <= 1e-2))
+        if not (signed.all() or (signed.any() and unit)):
+            continue
+        rank = (not unit, bool(zero.any()))
+        if best_rank is None or rank < best_rank:
+            best, best_rank = k, rank
+    return best
+
+
+def _read_point_list(p: str, ext: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """(points, normals or None) of a text point list (`.xyz` `.txt` `.pts` `.csv`)."""
+    what = "a point list (x y z [more columns] per line)"
+    layout = _text_layout(p, what, count_line=ext == ".pts")
+    h = layout.header
+    if h is not None and len(h) == layout.width and "x" in h and h[0] != "x":
+        hint = ""
+        if h == ("contour", "x", "y"):
+            hint = " (this is a 2-D curve file: read it with read_polyline or read_input)"
+        raise InputError(
+            f"'{p}' names its columns '{' '.join(h)}' on its first line; a point list must "
+            f"start with the columns x y z{hint}"
+        )
+    data = _loadtxt(p, what, delimiter=layout.delimiter, skiprows=layout.skip)
+    rows = len(data) if data.size else 0
+    if layout.count is not None and layout.count[0] != rows and (rows or layout.count[0]):
+        count, line = layout.count
+        raise InputError(
+            f"'{p}' declares {_plural(count, 'point')} on line {line}, but {_plural(rows, 'row')} "
+            "of numbers follow; the file is truncated or its count is wrong"
+        )
+    if rows == 0:
+        raise _empty(p)
+    width = data.shape[1]
+    if width < 3:
+        hint = ""
+        if ext == ".csv" and width == 2:
+            hint = "; a 2-column .csv is a 2-D polyline: read it with read_polyline or read_input"
+        raise InputError(
+            f"'{p}' has {_plural(width, 'column')}; a point list needs at least 3 (x y z first, "
+            f"then any other columns){hint}"
+        )
+    k = None if ext == ".pts" else _normal_columns(data, h)
+    return data[:, :3], None if k is None else data[:, k : k + 3]
+
+
 # --------------------------------------------------------------------------- readers
 
 
@@ -949,12 +1114,18 @@ def read_mesh(path) -> Mesh:
         vertices, faces = _read_obj(p)
     else:
         vertices, faces, _ = _load_geometry(p, ext)
+    return _mesh(p, ext, vertices, faces)
+
+
+def _mesh(p: str, ext: str, vertices: np.ndarray, faces: np.ndarray | None) -> Mesh:
+    """The checked `Mesh` of what a reader found in `p`."""
     if len(vertices) == 0:
         raise _empty(p)
     if faces is None:
+        use = "read_input" if ext == ".obj" else "read_points or read_input"
         raise InputError(
             f"'{p}' has vertices but no faces; a mesh needs triangles (for a point cloud use "
-            "read_points or read_input, with normals)"
+            f"{use}, with normals)"
         )
     _check_finite(p, vertices)
     if ext == ".stl":
@@ -1003,8 +1174,27 @@ def read_points(path) -> PointCloud:
     """Read a point cloud, with normals where the file has them.
 
     - `.ply`: vertex properties x, y, z and, if present, nx, ny, nz (faces are ignored).
-    - `.xyz` / `.txt`: whitespace-separated, 3 columns (x y z) or 6 (x y z nx ny nz); `#` starts
-      a comment.
+    - `.xyz` / `.txt` / `.csv`: one point per line, x y z in the first three columns, then any
+      number of other columns (`x y z r g b`, `x y z intensity`, `x y z nx ny nz`,
+      `x y z r g b nx ny nz`, `x y z nx ny nz r g b`, `x y z i r g b`, ...). The normals are
+      the first triple of consecutive columns, starting at column offset 3, 4, 6 or 7 (0-based)
+      in that order, whose columns each hold some negative values (a surface's outward normals
+      point every way; colours, intensities and counts are never negative) and that has no
+      row of zeros; every other column is ignored. So `x y z r g b` (colours 0-255 or 0-1)
+      gives points without normals, and `x y z nx ny nz` points with normals. Refinements: a
+      triple with only some columns negative also counts if all its rows have unit length
+      (normals facing one half-space, e.g. a terrain's); a triple of unit-length rows goes
+      before one of other lengths (so that `x y z s nx ny nz`, s a signed scalar, gives
+      nx ny nz); a triple that would be normals but for rows of zeros is taken when no other
+      is, so that those rows are refused later as zero-length normals rather than all the
+      normals dropped unsaid; columns a header names `nx ny nz` (or `normal_x normal_y
+      normal_z`) are the normals. Numbers are separated by whitespace,
+      commas or semicolons; `#` starts a comment; one leading header line without any number
+      (`x,y,z`, `//X Y Z R G B`) is skipped; a header that puts x elsewhere than first is
+      refused. A `.csv` needs 3 or more columns here (2 columns are a polyline:
+      `read_polyline`).
+    - `.pts` (Leica PTS): a first line with the point count, which must match the rows, then
+      `x y z [intensity [r g b]]` per line; no normals.
     - `.npz`: `points` (n, 2 or 3) and optional `normals` of the same shape.
 
     **Arguments:**
@@ -1012,8 +1202,9 @@ def read_points(path) -> PointCloud:
 
     **Returns:** a `PointCloud` (`normals` is `None` when the file has none).
 
-    **Raises:** `InputError` for a missing, empty, corrupt or unknown file, wrong columns or
-    arrays, or NaN or infinite values.
+    **Raises:** `InputError` for a missing, empty, corrupt or unknown file, fewer than 3
+    columns, rows of differing length or with words that are not numbers, wrong arrays, a
+    `.pts` count that differs from its rows, or NaN or infinite values.
     """
     p, ext = _check_file(path, _POINT_INPUTS)
     normals = None
@@ -1041,15 +1232,12 @@ def read_points(path) -> PointCloud:
                 f"{normals.shape}"
             )
     else:
-        data = _loadtxt(p, "a point list (x y z [nx ny nz] per line)")
-        if data.size == 0:
-            raise _empty(p)
-        if data.shape[1] not in (3, 6):
-            raise InputError(
-                f"'{p}' has {data.shape[1]} columns; expected 3 (x y z) or 6 (x y z nx ny nz)"
-            )
-        points = data[:, :3]
-        normals = data[:, 3:] if data.shape[1] == 6 else None
+        points, normals = _read_point_list(p, ext)
+    return _point_cloud(p, points, normals)
+
+
+def _point_cloud(p: str, points, normals) -> PointCloud:
+    """The checked `PointCloud` of what a reader found in `p`."""
     try:
         points = np.asarray(points, dtype=np.float64)
         normals = None if normals is None else np.asarray(normals, dtype=np.float64)
@@ -1075,7 +1263,8 @@ def read_polyline(path, closed: bool | None = None) -> Polyline:
     """Read a 2-D polyline.
 
     - `.csv`: two comma-separated columns x, y, with an optional header line (e.g. `x,y`). A file
-      written by `write_polylines` (`contour,x,y`) is read if it holds a single contour.
+      written by `write_polylines` (`contour,x,y`) is read if it holds a single contour. A `.csv`
+      of 3 or more columns is a point cloud: `read_points` or `read_input`.
     - `.npy`: an (n, 2) array.
 
     **Arguments:**
@@ -1112,7 +1301,12 @@ def read_polyline(path, closed: bool | None = None) -> Polyline:
         if v.size == 0:
             raise _empty(p)
         if v.shape[1] != 2:
-            raise InputError(f"'{p}' has {v.shape[1]} columns; a polyline needs exactly 2 (x, y)")
+            hint = ""
+            if v.shape[1] >= 3:
+                hint = "; for a point cloud (x y z first) use read_points or read_input"
+            raise InputError(
+                f"'{p}' has {v.shape[1]} columns; a polyline needs exactly 2 (x, y){hint}"
+            )
     v = np.asarray(v, dtype=np.float64)
     if len(v) == 0:
         raise _empty(p)
@@ -1141,9 +1335,12 @@ def _numeric(words: list[str]) -> bool:
 def read_input(path) -> Mesh | PointCloud | Polyline:
     """Read any supported input, deciding its kind by extension and content.
 
-    `.obj` `.stl` `.off`: mesh; `.ply`: mesh if it has faces, else point cloud; `.xyz` `.txt`:
-    point cloud; `.npz`: mesh with `vertices` and `faces`, point cloud with `points`;
-    `.csv` `.npy`: polyline (closed if its first vertex equals its last).
+    `.stl` `.off`: mesh; `.obj`: mesh, or point cloud if it has no faces (normals from its `vn`
+    lines when there are as many as vertices); `.ply`: mesh if it has faces, else point cloud;
+    `.xyz` `.txt` `.pts`: point cloud (`read_points`); `.npz`: mesh with `vertices` and `faces`,
+    point cloud with `points`; `.csv`: point cloud with 3 or more columns, else polyline (also
+    `contour,x,y` as `write_polylines` writes it); `.npy`: polyline (a polyline is closed if its
+    first vertex equals its last).
 
     **Arguments:**
     - `path`: the file.
@@ -1151,14 +1348,24 @@ def read_input(path) -> Mesh | PointCloud | Polyline:
     **Returns:** a `Mesh`, `PointCloud` or `Polyline`.
     """
     p, ext = _check_file(path, tuple(SUPPORTED))
-    if ext in (".obj", ".stl", ".off"):
+    if ext == ".obj":
+        normals: list[list[str]] = []
+        vertices, faces = _read_obj(p, normals)
+        if faces is None:
+            return _point_cloud(p, vertices, _obj_normals(p, normals, len(vertices)))
+        return _mesh(p, ext, vertices, faces)
+    if ext in (".stl", ".off"):
         return read_mesh(p)
     if ext == ".ply":
         header = _ply_header(p)
         has_faces = header.count("face") + header.count("tristrips") > 0
         return read_mesh(p) if has_faces else read_points(p)
-    if ext in (".xyz", ".txt"):
+    if ext in (".xyz", ".txt", ".pts"):
         return read_points(p)
+    if ext == ".csv":
+        layout = _text_layout(p, "a CSV table")
+        if layout.header != ("contour", "x", "y") and (layout.width or 0) >= 3:
+            return read_points(p)
     if ext == ".npz":
         z = read_npz(p)
         if "vertices" in z and "faces" in z:

@@ -300,11 +300,18 @@ def test_truncated_ply(tmp_path):
 
 
 def test_wrong_columns(tmp_path):
-    (tmp_path / "x.xyz").write_text("0 0 0 1\n1 1 1 1\n")
-    with pytest.raises(InputError, match=r"has 4 columns; expected 3 \(x y z\) or 6"):
+    # 4 columns (x y z intensity) are now read (test_xyz_extra_columns); 1 or 2 are refused.
+    (tmp_path / "x.xyz").write_text("0 0\n1 1\n")
+    with pytest.raises(InputError, match=r"has 2 columns; a point list needs at least 3 \(x y z"):
         io.read_points(tmp_path / "x.xyz")
+    (tmp_path / "one.txt").write_text("0\n1\n")
+    with pytest.raises(InputError, match=r"'.*one\.txt' has 1 column; a point list needs"):
+        io.read_input(tmp_path / "one.txt")
     (tmp_path / "x.csv").write_text("x,y,z\n0,0,0\n1,1,1\n")
-    with pytest.raises(InputError, match="has 3 columns; a polyline needs exactly 2"):
+    with pytest.raises(
+        InputError,
+        match="has 3 columns; a polyline needs exactly 2 .* use read_points or read_input",
+    ):
         io.read_polyline(tmp_path / "x.csv")
     np.save(tmp_path / "x.npy", np.zeros((4, 3)))
     with pytest.raises(InputError, match=r"shape \(4, 3\); expected \(n, 2\)"):
@@ -475,3 +482,199 @@ def test_atomic_output_normal_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (tmp_path / "p.xyz").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+# --------------------------------------------------------------------------- scanner text formats
+
+
+def _sphere_cloud(n=40, seed=3):
+    """Points on a sphere with their outward normals (components of every sign), colours 0-255
+    and intensities: the columns scanners and CloudCompare write."""
+    rng = np.random.default_rng(seed)
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    rgb = rng.integers(0, 256, size=(n, 3)).astype(float)
+    rgb[0] = 0  # a black point: a row of zeros in colour columns
+    intensity = rng.uniform(0, 4000, size=(n, 1))
+    return 2.0 * nrm + [5.0, -1.0, 0.5], nrm, rgb, intensity
+
+
+@pytest.mark.parametrize(
+    "layout, has_normals",
+    [
+        ("p n", True),
+        ("p rgb", False),
+        ("p rgb01", False),
+        ("p i", False),
+        ("p rgb n", True),
+        ("p n rgb", True),
+        ("p i rgb", False),
+        ("p i n", True),
+        ("p i rgb n", True),
+        ("p n i", True),
+    ],
+)
+def test_xyz_extra_columns(tmp_path, layout, has_normals):
+    p, n, rgb, i = _sphere_cloud()
+    columns = {"p": p, "n": n, "rgb": rgb, "rgb01": rgb / 255, "i": i}
+    path = tmp_path / "scan.xyz"
+    np.savetxt(path, np.hstack([columns[c] for c in layout.split()]), fmt="%.17g")
+    for cloud in (io.read_points(path), io.read_input(path)):
+        np.testing.assert_array_equal(cloud.points, p)
+        if has_normals:
+            np.testing.assert_array_equal(cloud.normals, n)
+        else:
+            assert cloud.normals is None
+
+
+def test_xyz_normals_facing_one_side_zero_rows_and_named_columns(tmp_path):
+    p, n, rgb, _ = _sphere_cloud()
+    up = n * np.sign(n[:, 2:])  # a terrain's normals: nz never negative, unit length
+    np.savetxt(tmp_path / "up.xyz", np.hstack([p, rgb, up]))
+    np.testing.assert_allclose(io.read_points(tmp_path / "up.xyz").normals, up, atol=1e-15)
+    # Signed columns with a row of zeros are normals with one missing, not dropped unsaid: they
+    # are passed on, to be refused as a zero-length normal.
+    bad = n.copy()
+    bad[7] = 0
+    np.savetxt(tmp_path / "zero.xyz", np.hstack([p, bad]))
+    np.testing.assert_allclose(io.read_points(tmp_path / "zero.xyz").normals, bad, atol=1e-15)
+    # ... unless another triple qualifies.
+    np.savetxt(tmp_path / "later.xyz", np.hstack([p, bad, n]))
+    np.testing.assert_allclose(io.read_points(tmp_path / "later.xyz").normals, n, atol=1e-15)
+    # A signed scalar beside the normals (a signed distance, say): the triple of unit rows wins
+    # over one that straddles the scalar and two normal components.
+    s = np.random.default_rng(4).normal(size=(len(p), 1))
+    np.savetxt(tmp_path / "sn.xyz", np.hstack([p, s, n]))
+    np.testing.assert_allclose(io.read_points(tmp_path / "sn.xyz").normals, n, atol=1e-15)
+    np.savetxt(tmp_path / "zs.xyz", np.hstack([p, bad, s]))
+    np.testing.assert_allclose(io.read_points(tmp_path / "zs.xyz").normals, bad, atol=1e-15)
+    # A header naming the normals settles it, whatever their signs.
+    flat = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    body = "\n".join(" ".join(f"{v:.17g}" for v in row) for row in np.hstack([p, rgb, flat]))
+    (tmp_path / "named.txt").write_text("//X Y Z R G B Nx Ny Nz\n" + body + "\n")
+    np.testing.assert_array_equal(io.read_points(tmp_path / "named.txt").normals, flat)
+
+
+@pytest.mark.parametrize(
+    "name, text",
+    [
+        ("comma.xyz", "x,y,z,nx,ny,nz\n0,1,2,0,0,-1\n3,4,5,0,-1,0\n6,7,8,-1,0,0\n"),
+        (
+            "spaced.csv",
+            "# scan\nX, Y, Z, NX, NY, NZ\n0, 1, 2, 0, 0, -1\n3, 4, 5, 0, -1, 0\n"
+            "6, 7, 8, -1, 0, 0\n",
+        ),
+        ("semi.txt", "0;1;2;0;0;-1\n3;4;5;0;-1;0 # a comment\n6; 7; 8;-1;0;0\n"),
+        ("cc.txt", "//X Y Z Nx Ny Nz\n0 1 2 0 0 -1\n\n3 4 5 0 -1 0\n6 7 8 -1 0 0\n"),
+    ],
+    ids=["comma", "spaced-csv", "semicolon", "cloudcompare"],
+)
+def test_point_list_separators_and_header(tmp_path, name, text):
+    (tmp_path / name).write_text(text)
+    for cloud in (io.read_points(tmp_path / name), io.read_input(tmp_path / name)):
+        assert isinstance(cloud, io.PointCloud)
+        np.testing.assert_array_equal(cloud.points, [[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+        np.testing.assert_array_equal(cloud.normals, [[0, 0, -1], [0, -1, 0], [-1, 0, 0]])
+
+
+def test_point_list_header_errors(tmp_path):
+    # Only one header line, and only one without numbers: a broken first row is not skipped.
+    (tmp_path / "two.xyz").write_text("x y z\nx y z\n1 2 3\n")
+    with pytest.raises(InputError, match=r"'.*two\.xyz' .* line 2: 'x' is not a number"):
+        io.read_points(tmp_path / "two.xyz")
+    (tmp_path / "row.xyz").write_text("1 2 abc\n1 2 3\n")
+    with pytest.raises(InputError, match=r"'.*row\.xyz' .* line 1: 'abc' is not a number"):
+        io.read_points(tmp_path / "row.xyz")
+    (tmp_path / "ragged.csv").write_text("x,y,z\n0,0,0\n1,1\n")
+    with pytest.raises(InputError, match=r"line 3 holds 2 numbers but the first data line holds 3"):
+        io.read_input(tmp_path / "ragged.csv")
+    (tmp_path / "header.txt").write_text("x,y,z\n")
+    with pytest.raises(InputError, match=r"'.*header\.txt' is empty: it holds no vertices"):
+        io.read_points(tmp_path / "header.txt")
+    (tmp_path / "nan.csv").write_text("x,y,z,r,g,b\n0,0,0,1,2,3\nnan,1,1,1,2,3\n")
+    with pytest.raises(InputError, match=r"'.*nan\.csv' has 1 vertex with NaN or infinite"):
+        io.read_input(tmp_path / "nan.csv")
+    (tmp_path / "nrm.xyz").write_text("0 0 0 0 0 -1 5\n1 1 1 -1 0 nan 5\n")
+    with pytest.raises(InputError, match=r"'.*nrm\.xyz' has 1 normal with NaN or infinite"):
+        io.read_points(tmp_path / "nrm.xyz")
+    # A header that puts x y z elsewhere than first: refused, not misread.
+    (tmp_path / "f.csv").write_text("polyline,x,y,z\n0,0,0,0\n0,1,0,0\n0,1,1,0\n")
+    with pytest.raises(InputError, match=r"names its columns 'polyline x y z'.* start with"):
+        io.read_input(tmp_path / "f.csv")
+
+
+def test_pts(tmp_path):
+    path = tmp_path / "scan.pts"
+    # x y z intensity r g b; Leica intensities are signed (-2048..2047): still no normals.
+    path.write_text("3\n0 1 2 -1200 10 20 30\n3 4 5 -80 0 0 0\n6 7 8 1500 255 255 255\n")
+    for cloud in (io.read_points(path), io.read_input(path)):
+        np.testing.assert_array_equal(cloud.points, [[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+        assert cloud.normals is None
+    (tmp_path / "i.pts").write_text("2\n0 1 2 7\n3 4 5 9\n")
+    np.testing.assert_array_equal(io.read_input(tmp_path / "i.pts").points, [[0, 1, 2], [3, 4, 5]])
+    (tmp_path / "short.pts").write_text("4\n0 1 2\n3 4 5\n6 7 8\n")
+    with pytest.raises(InputError, match=r"'.*short\.pts' declares 4 points on line 1, but 3 rows"):
+        io.read_input(tmp_path / "short.pts")
+    (tmp_path / "long.pts").write_text("1\n0 1 2\n3 4 5\n")
+    with pytest.raises(InputError, match=r"declares 1 point on line 1, but 2 rows"):
+        io.read_points(tmp_path / "long.pts")
+    (tmp_path / "x.pts").write_bytes(b"")
+    with pytest.raises(InputError, match=r"'.*x\.pts' is empty"):
+        io.read_input(tmp_path / "x.pts")
+    assert io.SUPPORTED[".pts"] == "point cloud"
+    with pytest.raises(InputError, match=r"holds a point cloud \(\.pts\)"):
+        io.read_mesh(path)
+    (tmp_path / "m.stl").write_text("solid x\n")
+    with pytest.raises(InputError, match=r"expected one of .*\.pts"):
+        io.read_points(tmp_path / "m.stl")
+    (tmp_path / "m.foo").write_text("1 2 3\n")
+    with pytest.raises(InputError, match=r"expected one of .*\.pts"):
+        io.read_input(tmp_path / "m.foo")
+
+
+def test_csv_point_cloud_or_polyline(tmp_path):
+    p, n, rgb, _ = _sphere_cloud()
+    rows = np.hstack([p, rgb, n])
+    body = "\n".join(",".join(f"{v:.17g}" for v in row) for row in rows)
+    (tmp_path / "cloud.csv").write_text("x,y,z,r,g,b,nx,ny,nz\n" + body + "\n")
+    for cloud in (io.read_input(tmp_path / "cloud.csv"), io.read_points(tmp_path / "cloud.csv")):
+        assert isinstance(cloud, io.PointCloud)
+        np.testing.assert_array_equal(cloud.points, p)
+        np.testing.assert_array_equal(cloud.normals, n)
+    (tmp_path / "bare.csv").write_text("1,2,3\n4,5,6\n7,8,9\n")
+    assert io.read_input(tmp_path / "bare.csv").normals is None
+    # Two columns stay a polyline, and so does a write_polylines file (contour,x,y).
+    (tmp_path / "line.csv").write_text("x,y\n0,0\n1,0\n1,1\n")
+    assert isinstance(io.read_input(tmp_path / "line.csv"), io.Polyline)
+    with pytest.raises(InputError, match=r"has 2 columns; .* a 2-column \.csv is a 2-D polyline"):
+        io.read_points(tmp_path / "line.csv")
+    io.write_polylines(tmp_path / "c.csv", [np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])])
+    assert isinstance(io.read_input(tmp_path / "c.csv"), io.Polyline)
+    with pytest.raises(InputError, match=r"'contour x y'.* 2-D curve file: read it with"):
+        io.read_points(tmp_path / "c.csv")
+
+
+def test_obj_without_faces_is_a_point_cloud(tmp_path):
+    v = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    vn = "vn -1 -1 -1\nvn 1 0 0\nvn 0 1 0\nvn 0 0 1\n"
+    (tmp_path / "n.obj").write_text("# scan\n" + v + vn)
+    cloud = io.read_input(tmp_path / "n.obj")
+    assert isinstance(cloud, io.PointCloud)
+    np.testing.assert_array_equal(cloud.points, np.vstack([np.zeros(3), np.eye(3)]))
+    np.testing.assert_array_equal(cloud.normals, [[-1, -1, -1], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    (tmp_path / "few.obj").write_text(v + "vn 0 0 1\n")
+    cloud = io.read_input(tmp_path / "few.obj")
+    assert isinstance(cloud, io.PointCloud) and cloud.normals is None
+    (tmp_path / "bare.obj").write_text(v)
+    assert io.read_input(tmp_path / "bare.obj").normals is None
+    with pytest.raises(InputError, match=r"'.*bare\.obj' has vertices but no faces"):
+        io.read_mesh(tmp_path / "bare.obj")
+    (tmp_path / "badvn.obj").write_text(v + "vn 0 0 1\nvn 0 0\nvn 0 0 1\nvn 0 0 1\n")
+    with pytest.raises(InputError, match=r"'.*badvn\.obj' could not be read as OBJ: line 6"):
+        io.read_input(tmp_path / "badvn.obj")
+    (tmp_path / "nan.obj").write_text(v + vn.replace("vn 1 0 0", "vn nan 0 0"))
+    with pytest.raises(InputError, match="has 1 normal with NaN or infinite"):
+        io.read_input(tmp_path / "nan.obj")
+    # With faces it is a mesh, as before, and a broken `vn` line does not matter there.
+    (tmp_path / "m.obj").write_text(v + "vn x\nf 1 2 3\n")
+    assert isinstance(io.read_input(tmp_path / "m.obj"), io.Mesh)

@@ -252,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "input",
         nargs="?",
-        help="mesh (.obj .ply .stl .off), point cloud with or without normals (.ply .xyz .npz) or polyline (.csv .npy)",
+        help="mesh (.obj .ply .stl .off), point cloud with or without normals (.ply .xyz .txt .pts .csv .npz; an .obj of vertices alone) or polyline (2-column .csv, .npy)",
     )
     r.add_argument(
         "-o",

@@ -158,8 +158,9 @@ def _bad_inputs(tmp_path):
     cases["nan"] = (tmp_path / "nan.xyz", "NaN")
     (tmp_path / "scan.foo").write_text("1 2 3\n")
     cases["unknown"] = (tmp_path / "scan.foo", "unknown format '.foo'")
-    (tmp_path / "nofaces.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n")
-    cases["no faces"] = (tmp_path / "nofaces.obj", "no faces")
+    # (an .obj of vertices alone is a point cloud; an .off says it is a mesh)
+    (tmp_path / "nofaces.off").write_text("OFF\n4 0 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n")
+    cases["no faces"] = (tmp_path / "nofaces.off", "no faces")
     zero = np.hstack([p, n])
     zero[7, 3:] = 0
     np.savetxt(tmp_path / "zero.xyz", zero)
@@ -167,9 +168,9 @@ def _bad_inputs(tmp_path):
     flat = np.hstack([p[:, :2], np.zeros((50, 1)), np.tile([0, 0, 1.0], (50, 1))])
     np.savetxt(tmp_path / "flat.xyz", flat)
     cases["plane"] = (tmp_path / "flat.xyz", "lie on one plane")
-    twin = np.vstack([np.hstack([p, n]), np.hstack([p[:1], -n[:1]])])
-    np.savetxt(tmp_path / "twin.xyz", twin)
-    cases["identical points"] = (tmp_path / "twin.xyz", "identical")
+    # (a point repeated with its own normal is merged: a mesh's vertices exported per face)
+    np.savetxt(tmp_path / "twin.xyz", np.tile(np.hstack([p[:1], n[:1]]), (60, 1)))
+    cases["identical points"] = (tmp_path / "twin.xyz", "only 1 point")
     return cases
 
 

@@ -210,6 +210,7 @@ def _surface(
         from ._constraints import MERGE_TOL, checked_samples
 
         p, n = checked_samples(data.points, data.normals)
+        check_not_flat(p, f"points of {name}")  # before any merging is said
         p, n, merged, dropped = merged_duplicates(p, n, MERGE_TOL * diagonal(p))
         if merged or dropped:
             log(

@@ -170,7 +170,7 @@ def _bad_inputs(tmp_path):
     cases["plane"] = (tmp_path / "flat.xyz", "lie on one plane")
     # (a point repeated with its own normal is merged: a mesh's vertices exported per face)
     np.savetxt(tmp_path / "twin.xyz", np.tile(np.hstack([p[:1], n[:1]]), (60, 1)))
-    cases["identical points"] = (tmp_path / "twin.xyz", "60 copies of one point")
+    cases["identical points"] = (tmp_path / "twin.xyz", "on one plane")
     return cases
 
 

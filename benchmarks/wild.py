@@ -66,7 +66,11 @@ skipped, and the skipped ones are listed at the end):
    `wound-figure-10k`, closed parts that cross and touch, WOUND_PARTS of them with their faces
    wound inside out (as an artist's model has them); `cloth-figure-10k`, a ball with a box on
    it and two cloths running into it, one modelled as two coincident faces wound opposite
-   ways, the other as one face. The reference is the made mesh.
+   ways, the other as one face; `thin-plate-10k`, a closed plate PLATE (1.4 point spacings
+   thick at 10k samples, both faces within every neighbourhood: a card, a blade). The
+   reference is the made mesh.
+5. `bunny-either-way-10k`: as in 1, with half of the normals flipped at random (normals that
+   point either way: an unoriented estimate, a soup wound at random); Poisson gets them too.
 
 Figures, per input and method:
 - with a reference (1, 2): wall time (s); Chamfer-L1 (% of the reference's bounding-box
@@ -165,6 +169,7 @@ ONE_SIDED_SAMPLES = 500_000
 HOLES = 12  # holes cut out of a closed mesh (kind "holed")
 CUT_AWAY = 0.2  # the cut sphere's opening, share of its area (kind "made")
 TERRAIN_HILLS, TERRAIN_NOISE = 8, 0.0025  # the made terrain's hills and noise (of the diagonal)
+PLATE = (1.0, 1.0, 0.02)  # the made thin plate's sides: 10k samples, 1.4 spacings thick
 WOUND_PARTS = (1, 3, 5)  # the made wound figure's parts wound inside out (2 limbs and an eye)
 
 
@@ -176,9 +181,15 @@ class Input:
     file: str
     points: int = 0  # surface samples, for kinds "mesh", "holed" and "made"
     noise: float = 0.0  # kind "made": Gaussian noise on the samples, fraction of the diagonal
+    flip: float = 0.0  # kind "mesh": share of the samples whose normals are flipped at random
 
     def describe(self) -> str:
         if self.kind == "mesh":
+            if self.flip:
+                return (
+                    f"{self.points:,} samples of {self.file} with true normals, {self.flip:.0%} "
+                    "of them flipped at random"
+                )
             return f"{self.points:,} samples of {self.file} with true normals"
         if self.kind == "holed":
             return f"{self.points:,} samples of {self.file} with {HOLES} holes cut, true normals"
@@ -227,6 +238,10 @@ INPUTS = (
     # opposite ways, or one face, running into a closed part
     Input("wound-figure-10k", "made", "wound-figure", 10_000),
     Input("cloth-figure-10k", "made", "cloth-figure", 10_000),
+    # a closed part thinner than two point spacings (a card, a blade): both faces within one
+    # neighbourhood; and normals that point either way (an unoriented estimate, a sampled soup)
+    Input("thin-plate-10k", "made", "thin-plate", 10_000),
+    Input("bunny-either-way-10k", "mesh", "stanford-bunny.obj", 10_000, flip=0.5),
 )
 BY_NAME = {i.name: i for i in INPUTS}
 
@@ -352,7 +367,7 @@ def made_mesh(name: str, seed: int):
     "wound-figure", an ellipsoid body with 4 seeded capsule limbs that cross it and 2 eyes that
     nearly touch it, the parts WOUND_PARTS wound inside out; "cloth-figure", a ball with a box
     on it and two wavy cloths that run into it, one as two coincident faces wound opposite ways,
-    the other as one face."""
+    the other as one face; "thin-plate", a box PLATE turned by a seeded rotation."""
     import trimesh
 
     from jaxrbf import io
@@ -379,6 +394,13 @@ def made_mesh(name: str, seed: int):
             [np.stack([a, b, cc], -1).reshape(-1, 3), np.stack([a, cc, d], -1).reshape(-1, 3)]
         )
         return io.Mesh(np.stack([u, v, z], -1).reshape(-1, 3), faces)
+    if name == "thin-plate":
+        plate = trimesh.creation.box(PLATE)
+        turn = trimesh.transformations.rotation_matrix(
+            rng.uniform(0, np.pi), _unit(rng.normal(size=3))
+        )
+        plate.apply_transform(turn)
+        return io.Mesh(np.asarray(plate.vertices), np.asarray(plate.faces))
     if name == "wound-figure":
         body = trimesh.creation.icosphere(4, 1.0)
         body.apply_scale([1.0, 0.7, 1.3])
@@ -457,6 +479,9 @@ def prepare(inp: Input, workdir: Path, seed: int):
         ref = cut_holes(truth, HOLES, seed + 7)
     if inp.kind in ("mesh", "holed"):
         points, normals = metrics.sample_surface(ref, inp.points, seed=seed)
+        if inp.flip:
+            turn = np.random.default_rng(seed + 17).random(len(points)) < inp.flip
+            normals = np.where(turn[:, None], -normals, normals)
         out = workdir / f"{inp.name}.ply"
         io.write_points(out, points, normals)
         return out, points, normals, ref, truth if inp.kind == "holed" else None, {}

@@ -372,8 +372,9 @@ def _turned_out(n, flipped: bool, turned) -> np.ndarray:
         # parts wound the other way (an artist's model): turned out, part by part
         n = np.where(turned[:, None], -n, n)
         log(
-            f"{int(turned.sum()):,} samples on parts whose normals point into the solid (the "
-            "winding number reads about -1/2 at them): turned out"
+            f"{int(turned.sum()):,} samples whose normals point into the solid (on parts wound "
+            "the other way, where the winding number reads about -1/2, or one by one, where it "
+            "jumps the wrong way across them): turned out"
         )
     return n
 

@@ -571,7 +571,13 @@ def volume_constraints(
     wtree = winding_tree(p, nrm, np.asarray(areas))
     flipped, turned = False, np.zeros(len(p), dtype=bool)
     if orient:
-        flipped, turned, nrm, wtree = oriented(p, nrm, spacing, np.asarray(areas), wtree, tree)
+        flipped, turned, nrm, wtree, lone = oriented(
+            p, nrm, spacing, np.asarray(areas), wtree, tree
+        )
+        if lone.any():  # the boundary test and the areas read the normals: again, as turned
+            rim = boundary_mask(p, nrm, tree=tree)
+            areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
+            wtree = winding_tree(p, nrm, np.asarray(areas))
     bury = close if bury is None else bury
     buried = buried_samples(p, nrm, spacing, wtree, tree) if bury else np.zeros(len(p), dtype=bool)
     level = closing_level(p, nrm, spacing, wtree, tree, use=~buried)
@@ -997,7 +1003,13 @@ def open_shells(
     flipped, turned = False, np.zeros(len(p), dtype=bool)
     if orient:
         # first: a part wound the other way reads as a sheet where it crosses another part
-        flipped, turned, nrm, wtree = oriented(p, nrm, spacing, areas, wtree, tree)
+        flipped, turned, nrm, wtree, lone = oriented(p, nrm, spacing, areas, wtree, tree)
+        if lone.any():  # the boundary test and the areas read the normals: again, as turned
+            rim = boundary_mask(p, nrm, tree=tree)
+            areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
+            wtree = winding_tree(p, nrm, areas)
+            if faced is not None:
+                faced = facing_pairs(p, nrm, spacing, tree)
     found = shell_samples(
         p,
         nrm,
@@ -1024,10 +1036,11 @@ def open_shells(
 
 
 def oriented(points, normals, spacing: float, areas, wtree: WindingTree, tree=None):
-    """`(flipped, turned, normals, wtree)`: the normals turned out where they point into the
-    solid, all of them (`points_inward`: `flipped`) and then part by part (`inward_samples`:
-    the mask `turned`), with the winding tree of the samples so oriented (`areas`: theirs, which
-    do not depend on the normals' sign)."""
+    """`(flipped, turned, normals, wtree, lone)`: the normals turned out where they point into
+    the solid, all of them (`points_inward`: `flipped`), then part by part (`inward_samples`)
+    and sample by sample (`contrary_samples`: the mask `lone`); `turned` is both masks, and the
+    winding tree is that of the samples so oriented (`areas`: theirs, which do not depend on
+    the normals' sign)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     idx, w = sample_readings(p, wtree)  # `points_inward`'s, shared with `inward_samples`
@@ -1040,7 +1053,54 @@ def oriented(points, normals, spacing: float, areas, wtree: WindingTree, tree=No
     if turned.any():  # parts wound the other way, turned out one by one
         nrm = np.where(turned[:, None], -nrm, nrm)
         wtree = winding_tree(p, nrm, areas)
-    return flipped, turned, nrm, wtree
+    lone = contrary_samples(p, nrm, spacing, areas, wtree, tree)
+    if lone.any():  # single samples against their surface, turned one by one
+        nrm = np.where(lone[:, None], -nrm, nrm)
+        wtree = winding_tree(p, nrm, areas)
+    return flipped, turned ^ lone, nrm, wtree, lone
+
+
+#: `contrary_samples`: rounds, and the jump across a sample below which it is turned.
+CONTRARY_ROUNDS, CONTRARY_JUMP = 2, -0.5
+
+
+def contrary_samples(
+    points, normals, spacing: float, areas, wtree: WindingTree, tree=None
+) -> np.ndarray:
+    """Which samples face against their surface one by one (a normal flipped here and there: a
+    scanner's at a grazing view, an estimate's): w jumps by about +1 across a sample from
+    `JUMP_SPACINGS` spacings along its normal to as far against it (`_across`), the other way
+    at a flipped one, since its own dipole is a small part of w there. Read only at samples
+    with a neighbour facing the other way (cosine below -1/2, among `TWO_FACED_K` within
+    `TWO_FACED_LINK` spacings) whose two readings are clear of other samples by `NEAR_CLEAR` of
+    their distance (not across a thin part, where w is rough); turned below `CONTRARY_JUMP`, in
+    `CONTRARY_ROUNDS` rounds (each on w with the last round's turns). 10k samples of the bunny
+    with 5% / 20% of their normals flipped at random: 478 of 525 / 1,815 of 2,033 turned, none
+    wrongly (`areas`: the samples', for the tree rebuilt after each round); 0-12 samples of the benchmark's inputs (126 of the beetle's 100k, all on its open
+    shells, which keep their normals as given)."""
+    p = np.asarray(points, dtype=float)
+    nrm = np.asarray(normals, dtype=float).copy()
+    tree = cKDTree(p) if tree is None else tree
+    turned = np.zeros(len(p), dtype=bool)
+    ok, safe = _neighbours(tree, p, TWO_FACED_K + 1, TWO_FACED_LINK * spacing)
+    cand = np.flatnonzero(np.any(ok & (np.einsum("ij,ikj->ik", nrm, nrm[safe]) < -0.5), axis=1))
+    if len(cand) == 0:
+        return turned
+    t = JUMP_SPACINGS * spacing
+    d_out, _ = tree.query(p[cand] + t * nrm[cand], workers=-1)
+    d_in, _ = tree.query(p[cand] - t * nrm[cand], workers=-1)
+    cand = cand[(d_out >= NEAR_CLEAR * t) & (d_in >= NEAR_CLEAR * t)]
+    for _ in range(CONTRARY_ROUNDS):
+        if len(cand) == 0:
+            break
+        _, jump = _across(p, nrm, cand, spacing, wtree)
+        flip = cand[jump < CONTRARY_JUMP]
+        if len(flip) == 0:
+            break
+        nrm[flip] = -nrm[flip]
+        turned[flip] = ~turned[flip]
+        wtree = winding_tree(p, nrm, areas)
+    return turned
 
 
 def points_inward(points, wtree: WindingTree, tested: int = ORIENT_TESTED) -> bool:

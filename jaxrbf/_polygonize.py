@@ -881,18 +881,24 @@ def _prune(implicit, verts: np.ndarray, faces: np.ndarray, disable: bool):
 
 
 #: A mesh component with no input sample within this many of the samples' point spacings of
-#: any of its vertices accounts for no input (`drop_unsupported`).
+#: any of its vertices accounts for no input (`drop_unsupported`) ...
 SUPPORT_SPACINGS = 2.0
+#: ... nor does one that fewer than this many distinct samples are nearest to: a bubble round
+#: a stray point (10k samples of the bunny with 100 strays in its box, 30 of them within a few
+#: spacings of the surface after `jaxrbf._clean.isolated`: 8 such bubbles of 34-354 vertices,
+#: one sample each).
+SUPPORT_MIN = 3
 
 
 def drop_unsupported(
     mesh, samples: np.ndarray, spacing: float, cell: float = 0.0, verbose: bool = False
 ):
-    """`mesh` without its connected components that lie wholly away from the `samples` (no
-    sample within `SUPPORT_SPACINGS` x `spacing` of any vertex, nor within a diagonal of the
-    meshing grid's `cell`, which a surface through a sample may leave between it and its
-    nearest vertex): a surface with no input behind it (the small closed bubbles a fit can
-    leave between the samples and the volume constraints that say outside there). The mesh is
+    """`mesh` without its connected components that lie wholly away from the `samples` (fewer
+    than `SUPPORT_MIN` distinct samples nearest to its vertices within `SUPPORT_SPACINGS` x
+    `spacing`, or within a diagonal of the meshing grid's `cell`, which a surface through a
+    sample may leave between it and its nearest vertex): a surface with no input behind it (the
+    small closed bubbles a fit can leave between the samples and the volume constraints that
+    say outside there, or round a stray sample). The mesh is
     returned as it is when no component has a sample near (the accounts check then says what is
     wrong)."""
     from scipy.spatial import cKDTree
@@ -906,9 +912,14 @@ def drop_unsupported(
     if n_comp == 1:
         return mesh
     reach = max(SUPPORT_SPACINGS * spacing, math.sqrt(3.0) * cell)
-    d, _ = cKDTree(samples).query(verts, distance_upper_bound=reach, workers=-1)
+    d, near = cKDTree(samples).query(verts, distance_upper_bound=reach, workers=-1)
     surface = np.bincount(label[faces[:, 0]], minlength=n_comp) > 0  # not a loose vertex
-    unsupported = surface & (np.bincount(label, np.isfinite(d), minlength=n_comp) == 0)
+    # the distinct samples nearest to each component's vertices: a bubble grown round one or two
+    # samples alone (a stray point a few spacings off the surface) accounts for no surface
+    ok = np.isfinite(d)
+    pairs = np.unique(np.stack([label[ok], near[ok]], axis=1), axis=0)
+    support = np.bincount(pairs[:, 0], minlength=n_comp)
+    unsupported = surface & (support < SUPPORT_MIN)
     if not unsupported.any() or unsupported.sum() == surface.sum():
         return mesh
     verts_kept, faces_kept = _keep_components(verts, faces, label, ~unsupported)
@@ -917,8 +928,8 @@ def drop_unsupported(
 
         log(
             f"dropped {int(unsupported.sum())} of {int(surface.sum())} mesh components "
-            f"({len(faces) - len(faces_kept):,} faces) with no input sample within "
-            f"{reach / spacing:.2g} point spacings of them"
+            f"({len(faces) - len(faces_kept):,} faces) with fewer than {SUPPORT_MIN} input "
+            f"samples within {reach / spacing:.2g} point spacings of them"
         )
     return Mesh(verts_kept, faces_kept)
 

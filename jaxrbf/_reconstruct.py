@@ -225,6 +225,21 @@ def _surface(
         # when it is noisy.
         noisy = _is_noisy(data, name, verbose)
         remove_outliers = noisy or data.normals is None
+        if not remove_outliers and len(data.points) > 16:
+            # a clean cloud with normals keeps its sparse stretches but not its strays: points
+            # far apart from the surface their neighbours sample (each of which would grow a
+            # blob of its own), by a local test
+            from ._clean import ISOLATED_RATIO, isolated
+
+            apart = isolated(data.points)
+            if apart.any():
+                data = io.PointCloud(data.points[~apart], data.normals[~apart])
+                if verbose:
+                    log(
+                        f"{name}: removed {int(apart.sum()):,} stray points of "
+                        f"{len(apart):,} (mean distance to their 16 nearest more than "
+                        f"{ISOLATED_RATIO:g}x their neighbours')"
+                    )
     data = _clean_cloud(
         data, name, mode, auto_flag(remove_outliers, "remove_outliers", False), verbose
     )

@@ -373,3 +373,29 @@ def test_repeated_points_with_their_own_normals_are_merged_not_refused(tmp_path,
     mean /= np.linalg.norm(mean, axis=1, keepdims=True)
     order = [int(np.flatnonzero((p[crease] == s).all(axis=1))[0]) for s in samples[merged]]
     np.testing.assert_allclose(normals[merged], mean[order], atol=1e-12)
+
+
+def test_strays_in_a_clean_cloud_with_normals_are_removed(tmp_path, capsys):
+    """A clean cloud with normals and 2% stray points in its box (random normals): before, each
+    stray grew a blob of its own and the command wrote them all (exit 0)."""
+    from jaxrbf._clean import isolated
+
+    p, n = sphere(2000)
+    rng = np.random.default_rng(8)
+    strays = rng.uniform(-1.6, 1.6, (40, 3))
+    strays = strays[np.abs(np.linalg.norm(strays, axis=1) - 1) > 0.3]  # not on the sphere
+    sn = rng.standard_normal(strays.shape)
+    pts, nrm = np.vstack([p, strays]), np.vstack([n, sn])
+    found = isolated(pts)
+    assert found[2000:].mean() > 0.6 and not found[:2000].any()
+    # density changing tenfold over the surface is no stray
+    many, _ = sphere(20000)
+    dense = np.vstack([p[p[:, 0] > 0], many[many[:, 0] <= 0]])
+    assert not isolated(dense).any()
+    src, out = tmp_path / "strays.ply", tmp_path / "out.ply"
+    jaxrbf.io.write_points(src, pts, nrm)
+    code, _, err = run(capsys, "reconstruct", src, "-o", out, "--resolution", 64)
+    assert code == 0, err
+    assert "stray points" in err
+    r = np.linalg.norm(jaxrbf.io.read_mesh(out).vertices, axis=1)
+    assert np.abs(r - 1).max() < 0.05, np.abs(r - 1).max()

@@ -111,3 +111,8 @@ def test_components_with_no_sample_near_are_dropped():
     # nothing is supported: the mesh is left for the accounts check to refuse
     far, _ = sphere(50, 1.0, (10.0, 10.0, 10.0))
     assert len(drop_unsupported(mesh, far, spacing).faces) == len(mesh.faces)
+    # a bubble that one or two samples alone stand behind (a stray point) goes too; three stay
+    for k, stays in ((1, False), (2, False), (3, True)):
+        lone = np.array([[0.0, 2.0, 0.0]]) + 0.3 * np.eye(3)[:k]  # on the bare sphere
+        v = np.asarray(drop_unsupported(mesh, np.concatenate([samples, lone]), spacing).vertices)
+        assert np.any(np.linalg.norm(v - [0.0, 2.0, 0.0], axis=1) < 0.5) == stays

@@ -70,7 +70,9 @@ skipped, and the skipped ones are listed at the end):
    thick at 10k samples, both faces within every neighbourhood: a card, a blade). The
    reference is the made mesh.
 5. `bunny-either-way-10k`: as in 1, with half of the normals flipped at random (normals that
-   point either way: an unoriented estimate, a soup wound at random); Poisson gets them too.
+   point either way: an unoriented estimate, a soup wound at random); `bunny-strays-10k`: as
+   in 1, with 1% stray points added uniformly in the box grown by 10% a side, with random
+   normals. Poisson gets the same points and normals.
 
 Figures, per input and method:
 - with a reference (1, 2): wall time (s); Chamfer-L1 (% of the reference's bounding-box
@@ -182,9 +184,15 @@ class Input:
     points: int = 0  # surface samples, for kinds "mesh", "holed" and "made"
     noise: float = 0.0  # kind "made": Gaussian noise on the samples, fraction of the diagonal
     flip: float = 0.0  # kind "mesh": share of the samples whose normals are flipped at random
+    strays: float = 0.0  # kind "mesh": stray points added in the box (share of the samples)
 
     def describe(self) -> str:
         if self.kind == "mesh":
+            if self.strays:
+                return (
+                    f"{self.points:,} samples of {self.file} with true normals and "
+                    f"{self.strays:.0%} strays in its box (random normals)"
+                )
             if self.flip:
                 return (
                     f"{self.points:,} samples of {self.file} with true normals, {self.flip:.0%} "
@@ -242,6 +250,8 @@ INPUTS = (
     # neighbourhood; and normals that point either way (an unoriented estimate, a sampled soup)
     Input("thin-plate-10k", "made", "thin-plate", 10_000),
     Input("bunny-either-way-10k", "mesh", "stanford-bunny.obj", 10_000, flip=0.5),
+    # stray points in a clean cloud with normals (a scanner's flying pixels, kept with normals)
+    Input("bunny-strays-10k", "mesh", "stanford-bunny.obj", 10_000, strays=0.01),
 )
 BY_NAME = {i.name: i for i in INPUTS}
 
@@ -482,6 +492,13 @@ def prepare(inp: Input, workdir: Path, seed: int):
         if inp.flip:
             turn = np.random.default_rng(seed + 17).random(len(points)) < inp.flip
             normals = np.where(turn[:, None], -normals, normals)
+        if inp.strays:
+            rng = np.random.default_rng(seed + 19)
+            lo, hi = points.min(axis=0), points.max(axis=0)
+            k = int(round(inp.strays * len(points)))
+            far = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), (k, 3))
+            points = np.concatenate([points, far])
+            normals = np.concatenate([normals, _unit(rng.normal(size=(k, 3)))])
         out = workdir / f"{inp.name}.ply"
         io.write_points(out, points, normals)
         return out, points, normals, ref, truth if inp.kind == "holed" else None, {}

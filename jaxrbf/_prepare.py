@@ -45,15 +45,19 @@ def duplicate_pairs(points: np.ndarray, tol: float) -> np.ndarray:
     return np.sort(pairs, axis=1) if len(pairs) else pairs.reshape(0, 2)
 
 
-def linked_groups(points: np.ndarray, link: float) -> tuple[int, np.ndarray]:
+def linked_groups(
+    points: np.ndarray, link: float, pairs: np.ndarray | None = None
+) -> tuple[int, np.ndarray]:
     """The groups of `points` joined by chains of links shorter than `link`: their count and each
-    point's group label (scipy's connected components of the k-d tree's pairs)."""
+    point's group label (scipy's connected components of the k-d tree's pairs; `pairs`: those
+    pairs, (k, 2), when already known)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     n = len(points)
-    pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
+    if pairs is None:
+        pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)
 
@@ -199,17 +203,17 @@ def consistent_winding(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndar
     cols = np.r_[b, a, roots]
     tree = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(m + 1, m + 1)).tocsr()
     _, pred = breadth_first_order(tree, m, directed=True, return_predecessors=True)
-    # the parity of each tree edge (pred -> face), looked up among the shared edges
-    code = np.r_[np.minimum(a, b) * (m + 1) + np.maximum(a, b)]
-    codes, where = np.unique(code, return_index=True)
-    flips = flip[where]
+
+    # the parity of each tree edge (parent -> face), looked up among the shared edges by the
+    # pair's code (smaller face, larger face)
+    def code(u, v):
+        return np.minimum(u, v) * (m + 1) + np.maximum(u, v)
+
+    codes, where = np.unique(code(a, b), return_index=True)
     parent = pred[:m].copy()
     parity = np.zeros(m + 1, dtype=bool)
-    inner = parent != m
-    c = np.minimum(parent[inner], np.flatnonzero(inner)) * (m + 1) + np.maximum(
-        parent[inner], np.flatnonzero(inner)
-    )
-    parity[:m][inner] = flips[np.searchsorted(codes, c)]
+    child = np.flatnonzero(parent != m)
+    parity[child] = flip[where][np.searchsorted(codes, code(parent[child], child))]
     # each face's parity relative to its piece's root, by pointer doubling along the tree
     up = np.r_[parent, m]
     while np.any(up[:m] != m):
@@ -236,15 +240,11 @@ def merged_duplicates(points: np.ndarray, normals: np.ndarray, tol: float):
     outward bisector); where two do, one place is said to face both ways (the edge of a sheet
     sampled on both faces) and the group is dropped, its neighbours standing for the surface
     there. `merged`, `dropped`: how many points were given up each way. `normals` unit."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     pairs = duplicate_pairs(points, tol)
     if not len(pairs):
         return points, normals, 0, 0
     n = len(points)
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
+    _, label = linked_groups(points, tol, pairs)
     size = np.bincount(label)
     opposed = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < -0.5
     bad = np.zeros(len(size), dtype=bool)

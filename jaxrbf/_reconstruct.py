@@ -206,7 +206,8 @@ def _surface(
         return p, n, diagonal(data.vertices), False, True
     noisy = None
     given = data.normals is not None and mode != "estimate"
-    if given and data.points.shape[1] == 3:
+    merged_already = given and data.points.shape[1] == 3
+    if merged_already:
         from ._constraints import MERGE_TOL, checked_samples
 
         p, n = checked_samples(data.points, data.normals)
@@ -223,7 +224,7 @@ def _surface(
         # A scan as it comes: strays and noise are dealt with without asking. A bare cloud
         # always loses its strays (they mislead the normal estimation); one with normals only
         # when it is noisy.
-        noisy = _is_noisy(data, name, verbose)
+        noisy = _is_noisy(data, name, verbose, checked=merged_already)
         remove_outliers = noisy or data.normals is None
         if not remove_outliers and len(data.points) > 16:
             # a clean cloud with normals keeps its sparse stretches but not its strays: points
@@ -259,13 +260,14 @@ def _surface(
 SPARSE = 10_000
 
 
-def _is_noisy(data, name: str, verbose: bool) -> bool:
-    """Whether the point cloud `data` scatters across its surface (`jaxrbf.estimate_noise`)."""
+def _is_noisy(data, name: str, verbose: bool, checked: bool = False) -> bool:
+    """Whether the point cloud `data` scatters across its surface (`jaxrbf.estimate_noise`);
+    `checked`: its normals were checked and its repeated points merged already."""
     from ._constraints import MERGE_TOL, checked_samples, duplicate_pairs_checked
     from ._noise import NOISY_SPACING, estimate_noise
 
     # the checks a fit makes anyway, first: their messages name the real problem
-    if data.normals is not None:
+    if data.normals is not None and not checked:
         p, nrm = checked_samples(data.points, data.normals)
         duplicate_pairs_checked(p, nrm, MERGE_TOL * diagonal(p))
     check_not_flat(data.points, f"points of {name}")

@@ -571,13 +571,10 @@ def volume_constraints(
     wtree = winding_tree(p, nrm, np.asarray(areas))
     flipped, turned = False, np.zeros(len(p), dtype=bool)
     if orient:
-        flipped, turned, nrm, wtree, lone = oriented(
+        flipped, turned, nrm, wtree, areas, again = oriented(
             p, nrm, spacing, np.asarray(areas), wtree, tree
         )
-        if lone.any():  # the boundary test and the areas read the normals: again, as turned
-            rim = boundary_mask(p, nrm, tree=tree)
-            areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
-            wtree = winding_tree(p, nrm, np.asarray(areas))
+        rim = rim if again is None else again
     bury = close if bury is None else bury
     buried = buried_samples(p, nrm, spacing, wtree, tree) if bury else np.zeros(len(p), dtype=bool)
     level = closing_level(p, nrm, spacing, wtree, tree, use=~buried)
@@ -841,6 +838,7 @@ def shell_samples(
     areas: np.ndarray | None = None,
     faced: np.ndarray | None = None,
     flaps: bool = False,
+    label: np.ndarray | None = None,
 ) -> Shells:
     """Which samples lie on open shells: pieces (`pieces`) that bound no volume, such as a
     sheet, a leaf, a shallow cap or an artist's car body without its underside. Across a
@@ -858,14 +856,15 @@ def shell_samples(
     is, thickened (`jaxrbf._cavities.shell_slabs`).
 
     Pieces of fewer than `SHELL_SMALL` samples, and those of fewer than `SHELL_MIN_SAMPLES` whose
-    jump is unclear, go with the nearest piece judged. Cost: 2 x `SHELL_TESTED` evaluations of
+    jump is unclear, go with the nearest piece judged (`label`: the samples' `pieces`, when
+    already known). Cost: 2 x `SHELL_TESTED` evaluations of
     w per piece of `SHELL_SMALL` samples or more."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     mask = np.zeros(len(p), dtype=bool)
     if len(p) < SHELL_MIN_SAMPLES:
         return Shells(mask, 0, 0, float("nan"))
-    label = pieces(p, spacing, tree)
+    label = pieces(p, spacing, tree) if label is None else label
     count = np.bincount(label)
     big = np.flatnonzero(count >= SHELL_SMALL)
     # Sheets within pieces first: two-faced ones (`faced`) and flaps hanging on closed parts
@@ -980,6 +979,7 @@ def open_shells(
     tree = cKDTree(p)
     faced = None if noisy else facing_pairs(p, nrm, spacing, tree)
     swapped = np.zeros(len(p), dtype=bool)
+    label = None
     if orient and faced is not None:
         # pieces whose samples face both ways at one place, mostly: their normals point either
         # way (a soup wound at random, an unoriented estimate) or the piece is sampled on two
@@ -1003,11 +1003,9 @@ def open_shells(
     flipped, turned = False, np.zeros(len(p), dtype=bool)
     if orient:
         # first: a part wound the other way reads as a sheet where it crosses another part
-        flipped, turned, nrm, wtree, lone = oriented(p, nrm, spacing, areas, wtree, tree)
-        if lone.any():  # the boundary test and the areas read the normals: again, as turned
-            rim = boundary_mask(p, nrm, tree=tree)
-            areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
-            wtree = winding_tree(p, nrm, areas)
+        flipped, turned, nrm, wtree, areas, again = oriented(p, nrm, spacing, areas, wtree, tree)
+        if again is not None:  # single samples turned: they faced others the other way
+            rim = again
             if faced is not None:
                 faced = facing_pairs(p, nrm, spacing, tree)
     found = shell_samples(
@@ -1023,6 +1021,7 @@ def open_shells(
         # a noisy cloud's thin parts read two-faced as well (their faces a noise width apart)
         faced=faced,
         flaps=not noisy,
+        label=label,
     )
     # the open shells keep their normals as given (their slabs do not ask which way they face,
     # and on an open sheet a concave stretch reads below 0 however it is wound); `turned`
@@ -1036,11 +1035,13 @@ def open_shells(
 
 
 def oriented(points, normals, spacing: float, areas, wtree: WindingTree, tree=None):
-    """`(flipped, turned, normals, wtree, lone)`: the normals turned out where they point into
-    the solid, all of them (`points_inward`: `flipped`), then part by part (`inward_samples`)
-    and sample by sample (`contrary_samples`: the mask `lone`); `turned` is both masks, and the
-    winding tree is that of the samples so oriented (`areas`: theirs, which do not depend on
-    the normals' sign)."""
+    """`(flipped, turned, normals, wtree, areas, rim)`: the normals turned out where they point
+    into the solid, all of them (`points_inward`: `flipped`), then part by part
+    (`inward_samples`) and sample by sample (`contrary_samples`); `turned` masks both, and the
+    winding tree is that of the samples so oriented. `areas`: the samples' (a part's sign does
+    not change them); after single samples were turned, which changes the boundary test
+    (`boundary_mask`) and with it the areas, both are read again and `rim` is the new boundary
+    mask (None when no single sample was turned)."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float)
     idx, w = sample_readings(p, wtree)  # `points_inward`'s, shared with `inward_samples`
@@ -1054,10 +1055,14 @@ def oriented(points, normals, spacing: float, areas, wtree: WindingTree, tree=No
         nrm = np.where(turned[:, None], -nrm, nrm)
         wtree = winding_tree(p, nrm, areas)
     lone = contrary_samples(p, nrm, spacing, areas, wtree, tree)
+    rim = None
     if lone.any():  # single samples against their surface, turned one by one
         nrm = np.where(lone[:, None], -nrm, nrm)
-        wtree = winding_tree(p, nrm, areas)
-    return flipped, turned ^ lone, nrm, wtree, lone
+        tree = cKDTree(p) if tree is None else tree
+        rim = boundary_mask(p, nrm, tree=tree)
+        areas = calibrated_areas(p, nrm, tree=tree, spacing=spacing, rim=rim)
+        wtree = winding_tree(p, nrm, np.asarray(areas))
+    return flipped, turned ^ lone, nrm, wtree, areas, rim
 
 
 #: `contrary_samples`: rounds, and the jump across a sample below which it is turned.
@@ -1076,8 +1081,9 @@ def contrary_samples(
     their distance (not across a thin part, where w is rough); turned below `CONTRARY_JUMP`, in
     `CONTRARY_ROUNDS` rounds (each on w with the last round's turns). 10k samples of the bunny
     with 5% / 20% of their normals flipped at random: 478 of 525 / 1,815 of 2,033 turned, none
-    wrongly (`areas`: the samples', for the tree rebuilt after each round); 0-12 samples of the benchmark's inputs (126 of the beetle's 100k, all on its open
-    shells, which keep their normals as given)."""
+    wrongly; 0-12 samples of the benchmark's inputs (126 of the beetle's 100k, all on its open
+    shells, which keep their normals as given). `areas`: the samples', for the tree rebuilt
+    between rounds."""
     p = np.asarray(points, dtype=float)
     nrm = np.asarray(normals, dtype=float).copy()
     tree = cKDTree(p) if tree is None else tree
@@ -1090,16 +1096,17 @@ def contrary_samples(
     d_out, _ = tree.query(p[cand] + t * nrm[cand], workers=-1)
     d_in, _ = tree.query(p[cand] - t * nrm[cand], workers=-1)
     cand = cand[(d_out >= NEAR_CLEAR * t) & (d_in >= NEAR_CLEAR * t)]
-    for _ in range(CONTRARY_ROUNDS):
+    for r in range(CONTRARY_ROUNDS):
         if len(cand) == 0:
             break
+        if r:  # w with the last round's turns
+            wtree = winding_tree(p, nrm, areas)
         _, jump = _across(p, nrm, cand, spacing, wtree)
         flip = cand[jump < CONTRARY_JUMP]
         if len(flip) == 0:
             break
         nrm[flip] = -nrm[flip]
         turned[flip] = ~turned[flip]
-        wtree = winding_tree(p, nrm, areas)
     return turned
 
 

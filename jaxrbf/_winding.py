@@ -90,6 +90,9 @@ RAMP = 0.2
 #: this many spacings (and twice as many) off the surface at up to this many samples.
 JUMP_SPACINGS = 4.0
 JUMP_SAMPLES = 2000
+#: `unit_jump` needs this many samples whose readings are clear of the rest, of JUMP_TRIED x
+#: JUMP_SAMPLES tried.
+JUMP_MIN_CLEAR, JUMP_TRIED = 50, 8
 #: Rim probes (`rim_probes`): a lattice of RIM_CELL spacings around the boundary samples, out to
 #: RIM_REACH spacings (or the octree's inner shell, if nearer), RIM_SHELL steps from every sample.
 RIM_CELL = 2.0
@@ -170,6 +173,15 @@ SHELL_MIN_SAMPLES, SHELL_TESTED = 100, 256
 SHELL_SMALL = 30
 SHELL_LEVEL, SHELL_JUMP = 1 / 3, 0.5
 SHELL_OPENING, SHELL_OPENING_LEVEL = 0.15, 0.46
+#: A thin closed part (a board, a seat, a blade: 4-12 spacings thick) is no open sheet, whatever
+#: w reads across it: its readings against the normal land by its other face, where the sum
+#: over discrete samples reads neither inside nor outside (mid-values 0.29-0.35 on made boxes
+#: 4-9 spacings thick, against a sheet's 0 and the level SHELL_LEVEL = 1/3). A piece is one
+#: when at least BACKED_SHARE of its read samples are backed: going against the normal, within
+#: BACKED_SPACINGS spacings, the nearest sample (within two spacings of the way) faces the other
+#: way (cosine below -1/2; `_backed`). An open sheet has nothing behind it, or a surface that
+#: faces it.
+BACKED_SPACINGS, BACKED_SHARE = 12, 0.5
 #: `openings`' rims: groups of RIM_MIN boundary samples or more (`rim_groups`; a short tube of
 #: 100 samples has 5-10 at each end).
 RIM_MIN = 5
@@ -780,6 +792,17 @@ def _across(p, nrm, idx, spacing: float, wtree: WindingTree):
     return (w_in + w_out) / 2, w_in - w_out
 
 
+def _backed(p, nrm, idx, spacing: float, tree: cKDTree) -> np.ndarray:
+    """Which samples `idx` have another face behind them (`BACKED_SPACINGS`)."""
+    backed = np.zeros(len(idx), dtype=bool)
+    for k in range(1, BACKED_SPACINGS + 1):
+        dist, j = tree.query(p[idx] - k * spacing * nrm[idx], workers=-1)
+        behind = np.einsum("ij,ij->i", p[j] - p[idx], nrm[idx]) < -0.5 * spacing
+        facing = np.einsum("ij,ij->i", nrm[j], nrm[idx]) < -0.5
+        backed |= (dist <= 2 * spacing) & behind & facing
+    return backed
+
+
 def two_faced(points, normals, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
     """Which samples lie on a two-faced sheet: `facing_pairs` of `TWO_FACED_PAIRS` or more."""
     return facing_pairs(points, normals, spacing, tree) >= TWO_FACED_PAIRS
@@ -864,6 +887,7 @@ def shell_samples(
     mask = np.zeros(len(p), dtype=bool)
     if len(p) < SHELL_MIN_SAMPLES:
         return Shells(mask, 0, 0, float("nan"))
+    tree = cKDTree(p) if tree is None else tree
     label = pieces(p, spacing, tree) if label is None else label
     count = np.bincount(label)
     big = np.flatnonzero(count >= SHELL_SMALL)
@@ -920,6 +944,8 @@ def shell_samples(
             # mid-value changes sign (a closed piece reads -1/2)
             m = abs(np.median(mid[sel]))
             open_ = m < level or (wide is not None and wide[g] and m < SHELL_OPENING_LEVEL)
+            if open_ and np.mean(_backed(p, nrm, idx[sel], spacing, tree)) >= BACKED_SHARE:
+                open_ = False  # a thin closed part
             # a piece a few spacings across subtends little from JUMP_SPACINGS off: its jump
             # reads about 1/2 where a large sheet's reads 1 (a thin closed plate's still 0)
             few = count[g] < SHELL_MIN_SAMPLES
@@ -1486,10 +1512,13 @@ def calibrated_areas(points, normals, *, tree=None, spacing=None, rim=None) -> n
     rim = boundary_mask(points, normals, tree=tree) if rim is None else rim
     areas = sample_areas(points, tree=tree)
     areas[rim] *= 0.5
-    return areas / unit_jump(points, normals, spacing, winding_tree(points, normals, areas))
+    wtree = winding_tree(points, normals, areas)
+    return areas / unit_jump(points, normals, spacing, wtree, near=tree)
 
 
-def unit_jump(points, normals, spacing: float, tree: WindingTree, seed: int = 0) -> float:
+def unit_jump(
+    points, normals, spacing: float, tree: WindingTree, seed: int = 0, near: cKDTree | None = None
+) -> float:
     """The jump of w across the sampled surface, taken to zero distance: J(t) = median of
     w(p - t n) - w(p + t n) over up to `JUMP_SAMPLES` samples, at t = `JUMP_SPACINGS` and twice
     that, extrapolated linearly to t = 0 (2 J(t) - J(2t)). At t -> 0 the jump is exactly one
@@ -1499,9 +1528,26 @@ def unit_jump(points, normals, spacing: float, tree: WindingTree, seed: int = 0)
     sum over discrete samples is too rough to tell. `sample_areas` errs by the sampling's
     irregularity: this reads 1.0 on uniform samples of a mesh, 1.2 on a noisy, misregistered
     range scan (whose w then reads 1.1 inside, and whose holes' caps, where w = 1/2, sag by a
-    few tenths of a percent of the diagonal). Clipped to [1/2, 2]."""
+    few tenths of a percent of the diagonal). Clipped to [1/2, 2].
+
+    Only samples all four of whose readings are clear of other samples (none nearer than
+    `NEAR_CLEAR` of the reading's distance; `near`, a k-d tree of `points`) count: across a
+    closed part thinner than 2 t the far reading lies outside again, J(2t) reads about 0 and
+    the extrapolation doubled J(t) (a made chair of boxes 4-5 spacings thick: 1.62, so that w
+    read 0.6 inside its seat, which was then taken for an open sheet and thickened: NC 0.881
+    against Poisson's 0.941). With fewer than `JUMP_MIN_CLEAR` such samples (every part thin)
+    the weights are taken as they are (1)."""
+    near = cKDTree(points) if near is None else near
     rng = np.random.default_rng(seed)
-    pick = rng.choice(len(points), min(JUMP_SAMPLES, len(points)), replace=False)
+    pick = rng.permutation(len(points))[: JUMP_TRIED * JUMP_SAMPLES]
+    clear = np.ones(len(pick), dtype=bool)
+    for t in (JUMP_SPACINGS, 2 * JUMP_SPACINGS):
+        step = t * spacing * normals[pick]
+        for q in (points[pick] - step, points[pick] + step):
+            clear &= near.query(q, workers=-1)[0] >= NEAR_CLEAR * t * spacing
+    pick = pick[clear][:JUMP_SAMPLES]
+    if len(pick) < JUMP_MIN_CLEAR:
+        return 1.0
     jumps = []
     for t in (JUMP_SPACINGS, 2 * JUMP_SPACINGS):
         step = t * spacing * normals[pick]

@@ -1009,3 +1009,28 @@ def test_single_samples_against_their_surface_are_turned_one_by_one():
     s = winding.point_spacing(plate)
     a = winding.sample_areas(plate)
     assert not winding.contrary_samples(plate, pn, s, a, winding.winding_tree(plate, pn, a)).any()
+
+
+@pytest.mark.parametrize("thickness", [0.03, 0.045])
+def test_closed_boards_a_few_spacings_thick_are_closed_parts_not_open_sheets(thickness):
+    # a board (a seat, a shelf) 4-7 spacings thick: w read 4 spacings against the normal lands
+    # by its other face, and 8 spacings off passes through it, so neither the unit jump (which
+    # read 1.6, putting w at 0.6 inside) nor the mid-value across (0.29, a sheet's side of 1/3)
+    # may be taken from those readings
+    import trimesh
+
+    from jaxrbf.metrics import sample_surface
+
+    board = trimesh.creation.box([1.0, 1.0, thickness])
+    p, n = sample_surface(board, 10_000, seed=0)
+    spacing = point_spacing(p)
+    assert 4 < thickness / spacing < 7
+    areas = calibrated_areas(p, n, spacing=spacing)
+    assert abs(areas.sum() / board.area - 1) < 0.15
+    inside = winding_number(np.array([[0.0, 0, 0], [0.3, -0.2, 0]]), p, n, areas=areas)
+    assert np.all(inside > 0.7)  # 0.8 (the near sum's own error); 0.5 when the jump was 1.6
+    shells = open_shells(p, n, spacing)[0]
+    assert not shells.mask.any() and shells.shells == 0
+    # an open sheet of the same sampling stays one
+    top = p[:, 2] > thickness / 2 - 1e-9
+    assert open_shells(p[top], n[top], point_spacing(p[top]))[0].mask.all()

@@ -67,7 +67,8 @@ skipped, and the skipped ones are listed at the end):
    wound inside out (as an artist's model has them); `cloth-figure-10k`, a ball with a box on
    it and two cloths running into it, one modelled as two coincident faces wound opposite
    ways, the other as one face; `thin-plate-10k`, a closed plate PLATE (1.4 point spacings
-   thick at 10k samples, both faces within every neighbourhood: a card, a blade). The
+   thick at 10k samples, both faces within every neighbourhood: a card, a blade); `chair-10k`,
+   a chair of closed boxes that touch, 4-5 spacings thick (furniture: boards, legs). The
    reference is the made mesh.
 5. `bunny-either-way-10k`: as in 1, with half of the normals flipped at random (normals that
    point either way: an unoriented estimate, a soup wound at random); `bunny-strays-10k`: as
@@ -249,6 +250,8 @@ INPUTS = (
     # a closed part thinner than two point spacings (a card, a blade): both faces within one
     # neighbourhood; and normals that point either way (an unoriented estimate, a sampled soup)
     Input("thin-plate-10k", "made", "thin-plate", 10_000),
+    # furniture: closed boards 4-5 spacings thick that touch (a seat, legs, a back)
+    Input("chair-10k", "made", "chair", 10_000),
     Input("bunny-either-way-10k", "mesh", "stanford-bunny.obj", 10_000, flip=0.5),
     # stray points in a clean cloud with normals (a scanner's flying pixels, kept with normals)
     Input("bunny-strays-10k", "mesh", "stanford-bunny.obj", 10_000, strays=0.01),
@@ -377,7 +380,10 @@ def made_mesh(name: str, seed: int):
     "wound-figure", an ellipsoid body with 4 seeded capsule limbs that cross it and 2 eyes that
     nearly touch it, the parts WOUND_PARTS wound inside out; "cloth-figure", a ball with a box
     on it and two wavy cloths that run into it, one as two coincident faces wound opposite ways,
-    the other as one face; "thin-plate", a box PLATE turned by a seeded rotation."""
+    the other as one face; "thin-plate", a box PLATE turned by a seeded rotation; "chair", a
+    chair of closed boxes that touch (a seat and a back 0.05 thick, four legs 0.06 square, three
+    rungs 0.04 square that touch nothing; 1 x 2 x 1 in all: 4-5 point spacings thick at 10k
+    samples) turned by a seeded rotation."""
     import trimesh
 
     from jaxrbf import io
@@ -447,6 +453,21 @@ def made_mesh(name: str, seed: int):
             trimesh.Trimesh(left, faces[:, ::-1], process=False),  # one face
         ]
         return _joined([ball, box, *cloths])
+    if name == "chair":
+        box = trimesh.creation.box
+        parts = [box([1.0, 0.05, 1.0]).apply_translation([0, 1.0, 0])]
+        for x in (-0.45, 0.45):
+            for z in (-0.45, 0.45):
+                parts.append(box([0.06, 1.0, 0.06]).apply_translation([x, 0.5, z]))
+        parts.append(box([1.0, 1.0, 0.05]).apply_translation([0, 1.5, -0.475]))
+        for x in (-0.3, 0.0, 0.3):
+            parts.append(box([0.04, 0.04, 0.9]).apply_translation([x, 0.3, 0]))
+        turn = trimesh.transformations.rotation_matrix(
+            rng.uniform(0, np.pi), _unit(rng.normal(size=3))
+        )
+        for part in parts:
+            part.apply_transform(turn)
+        return _joined(parts)
     raise ValueError(f"no made surface {name!r}")
 
 

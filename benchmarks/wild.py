@@ -68,8 +68,9 @@ skipped, and the skipped ones are listed at the end):
    it and two cloths running into it, one modelled as two coincident faces wound opposite
    ways, the other as one face; `thin-plate-10k`, a closed plate PLATE (1.4 point spacings
    thick at 10k samples, both faces within every neighbourhood: a card, a blade); `chair-10k`,
-   a chair of closed boxes that touch, 4-5 spacings thick (furniture: boards, legs). The
-   reference is the made mesh.
+   a chair of closed boxes that touch, 4-5 spacings thick (furniture: boards, legs);
+   `cup-10k`, a closed cup whose wall and floor are 3.8 spacings thick. The reference is the
+   made mesh.
 5. `bunny-either-way-10k`: as in 1, with half of the normals flipped at random (normals that
    point either way: an unoriented estimate, a soup wound at random); `bunny-strays-10k`: as
    in 1, with 1% stray points added uniformly in the box grown by 10% a side, with random
@@ -252,6 +253,8 @@ INPUTS = (
     Input("thin-plate-10k", "made", "thin-plate", 10_000),
     # furniture: closed boards 4-5 spacings thick that touch (a seat, legs, a back)
     Input("chair-10k", "made", "chair", 10_000),
+    # a closed thin-walled vessel: its wall 3.8 spacings thick all round
+    Input("cup-10k", "made", "cup", 10_000),
     Input("bunny-either-way-10k", "mesh", "stanford-bunny.obj", 10_000, flip=0.5),
     # stray points in a clean cloud with normals (a scanner's flying pixels, kept with normals)
     Input("bunny-strays-10k", "mesh", "stanford-bunny.obj", 10_000, strays=0.01),
@@ -383,7 +386,9 @@ def made_mesh(name: str, seed: int):
     the other as one face; "thin-plate", a box PLATE turned by a seeded rotation; "chair", a
     chair of closed boxes that touch (a seat and a back 0.05 thick, four legs 0.06 square, three
     rungs 0.04 square that touch nothing; 1 x 2 x 1 in all: 4-5 point spacings thick at 10k
-    samples) turned by a seeded rotation."""
+    samples) turned by a seeded rotation; "cup", one closed surface of revolution (a cup 1 wide
+    and 1 high whose wall and floor are 0.05 thick, 3.8 point spacings at 10k samples) turned
+    by a seeded rotation."""
     import trimesh
 
     from jaxrbf import io
@@ -468,6 +473,15 @@ def made_mesh(name: str, seed: int):
         for part in parts:
             part.apply_transform(turn)
         return _joined(parts)
+    if name == "cup":
+        profile = np.array([[0, 0], [0.5, 0], [0.5, 1.0], [0.45, 1.0], [0.45, 0.05], [0, 0.05]])
+        cup = trimesh.creation.revolve(profile, sections=96)
+        cup.apply_transform(
+            trimesh.transformations.rotation_matrix(
+                rng.uniform(0, np.pi), _unit(rng.normal(size=3))
+            )
+        )
+        return io.Mesh(np.asarray(cup.vertices), np.asarray(cup.faces))
     raise ValueError(f"no made surface {name!r}")
 
 

@@ -776,8 +776,14 @@ def flap_samples(points, normals, spacing: float, wtree: WindingTree, tree=None)
     closing would span with a balloon from its edge round to the body."""
     p = np.asarray(points, dtype=float)
     idx = _read_at(len(p))
-    mid, jump = _across(p, np.asarray(normals, dtype=float), idx, spacing, wtree)
+    nrm = np.asarray(normals, dtype=float)
+    mid, jump = _across(p, nrm, idx, spacing, wtree)
     flap = (np.abs(mid) < FLAP_LEVEL) & (jump > SHELL_JUMP)
+    # a thin closed wall's readings against the normal land by its other face, and read as a
+    # sheet's: a sample with a face turned the other way behind it is no flap (`_backed`)
+    tree = cKDTree(p) if tree is None else tree
+    some = np.flatnonzero(flap)
+    flap[some[_backed(p, nrm, idx[some], spacing, tree)]] = False
     if len(idx) == len(p):
         return flap
     return flap[cKDTree(p[idx]).query(p, workers=-1)[1]]

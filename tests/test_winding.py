@@ -1034,3 +1034,20 @@ def test_closed_boards_a_few_spacings_thick_are_closed_parts_not_open_sheets(thi
     # an open sheet of the same sampling stays one
     top = p[:, 2] > thickness / 2 - 1e-9
     assert open_shells(p[top], n[top], point_spacing(p[top]))[0].mask.all()
+
+
+def test_a_thin_walled_cup_has_no_flaps():
+    # a closed cup whose wall is 4 spacings thick: read across the wall, w lands by its other
+    # face and some samples read as a sheet's (168 of them were thickened as a flap hanging on
+    # the cup, a slab inside its wall); each has the wall's other face behind it
+    import trimesh
+
+    from jaxrbf.metrics import sample_surface
+
+    profile = np.array([[0, 0], [0.5, 0], [0.5, 1.0], [0.45, 1.0], [0.45, 0.05], [0, 0.05]])
+    cup = trimesh.creation.revolve(profile, sections=96)
+    p, n = sample_surface(cup, 10_000, seed=0)
+    spacing = point_spacing(p)
+    assert 3 < 0.05 / spacing < 5
+    shells = open_shells(p, n, spacing)[0]
+    assert not shells.mask.any() and shells.flaps == 0

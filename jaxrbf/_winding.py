@@ -650,6 +650,7 @@ def volume_constraints(
     closing = (np.zeros((0, 3)), np.zeros((0, 3)))
     if close:
         closing = closing_samples(p, probes[undecided], spacing, wtree, tree, level)
+        closing = _out_of_walls(*closing, p, nrm, spacing, tree)
         # each hole closed again with the others closed (`reclosed`), and the probes valued
         # by the samples and those closings together: where several holes open one solid, w
         # alone reads well under 1 inside it and each closing bows in
@@ -1361,6 +1362,40 @@ def _pack(keys: np.ndarray) -> np.ndarray:
     """One int64 per lattice index triple (each within +/- 2^20)."""
     k = keys.astype(np.int64) + (1 << 20)
     return (k[..., 0] << 42) | (k[..., 1] << 21) | k[..., 2]
+
+
+#: `_out_of_walls`: the samples within WALL_REACH spacings of a closing sample that tell a
+#: wall, and the widest gap (radians) in the directions to them, seen along the wall.
+WALL_REACH, WALL_GAP = 6.0, np.pi / 2
+
+
+def _out_of_walls(x, xn, points, normals, spacing: float, tree: cKDTree):
+    """The closing samples `x` (normals `xn`) that do not lie inside a thin wall: in a gap of
+    the random samples of a closed wall 3-4 spacings thick, a point can lie 3 spacings from
+    every sample with w near its level there (0.6-0.8 inside such a wall), and a closing
+    sample (f = 0) there grows a bubble out of the wall (a made cup: 14 of them, bubbles 2% of
+    the diagonal). Such a point lies behind samples within `WALL_REACH` spacings that face
+    opposite ways (the wall's two faces), and seen along their normal those samples surround
+    it (no gap in its directions wider than `WALL_GAP`); over a hole or a tube's open end they
+    lie to one side."""
+    if len(x) == 0:
+        return x, xn
+    keep = np.ones(len(x), dtype=bool)
+    for i, near in enumerate(tree.query_ball_point(x, WALL_REACH * spacing, workers=-1)):
+        q, m = points[near], normals[near]
+        behind = np.einsum("ij,ij->i", x[i] - q, m) < 0
+        q, m = q[behind], m[behind]
+        if len(q) < 8 or np.min(m @ m.T) > -0.5:
+            continue
+        axis = m[0]
+        u = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(axis, u)
+        rel = q - x[i]
+        ang = np.sort(np.arctan2(rel @ v, rel @ u))
+        gap = np.max(np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi])))
+        keep[i] = gap > WALL_GAP
+    return x[keep], xn[keep]
 
 
 def closing_samples(points, seeds, spacing: float, wtree: WindingTree, tree: cKDTree, level=None):

@@ -1051,3 +1051,6 @@ def test_a_thin_walled_cup_has_no_flaps():
     assert 3 < 0.05 / spacing < 5
     shells = open_shells(p, n, spacing)[0]
     assert not shells.mask.any() and shells.flaps == 0
+    # nor closing samples: in gaps of the random samples inside its wall w comes near its
+    # level, 3 spacings from every sample (a closing sample there grew a bubble out of the wall)
+    assert len(volume_constraints(p, n, spacing, close=True).closing) == 0

@@ -91,7 +91,8 @@ class HoleReport(NamedTuple):
         )
 
 
-def _tangent_frames(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tangent_frames(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents `(e1, e2)` per unit normal of `n` (m, 3), with `n` a right-handed frame."""
     helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     e1 = np.cross(n, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
@@ -104,6 +105,12 @@ def boundary_mask(
     """True for the points of an oriented cloud (n, 3) that lie on a boundary of the sampled
     surface (see the module docstring, step 1)."""
     return _boundary(points, normals, k, gap, tree)[0]
+
+
+def widest_gap(ang: np.ndarray) -> np.ndarray:
+    """The widest gap between consecutive directions of `ang` (radians, sorted along the last
+    axis), the one across the +/- pi cut included."""
+    return np.maximum(np.diff(ang, axis=-1).max(axis=-1), 2 * np.pi - (ang[..., -1] - ang[..., 0]))
 
 
 def _boundary(points, normals, k: int, gap: float, tree=None):
@@ -133,13 +140,12 @@ def _boundary(points, normals, k: int, gap: float, tree=None):
         u = np.cross(n[nb], n[sl, None, :])
         ud = np.cross(u, d)
         d = d + ud + np.cross(u, ud) / np.where(same, 1.0 + cos, 1.0)[..., None]
-        e1, e2 = _tangent_frames(n[sl])
+        e1, e2 = tangent_frames(n[sl])
         ang = np.arctan2(np.einsum("bkd,bd->bk", d, e2), np.einsum("bkd,bd->bk", d, e1))
         # neighbours on the other side of a thin part repeat the nearest same-side angle
         first = ang[np.arange(len(ang)), np.argmax(same, axis=1)]
         ang = np.sort(np.where(same, ang, first[:, None]), axis=1)
-        widest = np.maximum(np.diff(ang, axis=1).max(axis=1), 2 * np.pi - (ang[:, -1] - ang[:, 0]))
-        out[sl] = widest > gap
+        out[sl] = widest_gap(ang) > gap
     return out, nearest
 
 

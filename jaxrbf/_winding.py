@@ -57,7 +57,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._errors import InputError
-from ._holes import boundary_mask, rim_groups
+from ._holes import boundary_mask, rim_groups, tangent_frames, widest_gap
 from ._project import _newton_step
 from ._schwarz import _kd_leaves
 from .objectives import point_spacing
@@ -1387,14 +1387,9 @@ def _out_of_walls(x, xn, points, normals, spacing: float, tree: cKDTree):
         q, m = q[behind], m[behind]
         if len(q) < 8 or np.min(m @ m.T) > -0.5:
             continue
-        axis = m[0]
-        u = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
-        u /= np.linalg.norm(u)
-        v = np.cross(axis, u)
+        u, v = (e[0] for e in tangent_frames(m[:1]))
         rel = q - x[i]
-        ang = np.sort(np.arctan2(rel @ v, rel @ u))
-        gap = np.max(np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi])))
-        keep[i] = gap > WALL_GAP
+        keep[i] = widest_gap(np.sort(np.arctan2(rel @ v, rel @ u))) > WALL_GAP
     return x[keep], xn[keep]
 
 
@@ -1588,9 +1583,8 @@ def unit_jump(
     against Poisson's 0.941). Where most samples are such (`BACKED_SHARE`: a thin-walled
     object, whose other samples lie on its parts' narrow sides, between two faces: the chair's
     read 0.81), or fewer than `JUMP_MIN_CLEAR` are not, the weights are taken as they are (1).
-    (Keeping only samples all of whose readings lie clear
-    of every sample, `NEAR_CLEAR`, read 1.13 instead of 1.19 on virtual scans, and cost the
-    fandisk scan 0.004% of Chamfer-L1.)"""
+    (Keeping only samples all of whose readings lie clear of every sample, `NEAR_CLEAR`, read
+    1.13 instead of 1.19 on virtual scans, and cost the fandisk scan 0.004% of Chamfer-L1.)"""
     near = cKDTree(points) if near is None else near
     rng = np.random.default_rng(seed)
     pick = rng.permutation(len(points))[: JUMP_TRIED * JUMP_SAMPLES]

@@ -112,6 +112,10 @@ CLOSE_MAX_CELLS = 2_000_000
 #: A sample is buried when w reads above `BURIED_LEVEL` at `BURIED_SPACINGS` spacings along its
 #: normal and as far against it (`buried_samples`).
 BURIED_SPACINGS, BURIED_LEVEL = 4.0, 0.6
+#: ... unless a face turned back towards the sample lies nearer than that (more than
+#: `BURIED_GAP` spacings ahead; nearer, the two touch, as boards that meet face to face, whose
+#: seam lies inside their union): then w is read halfway to it.
+BURIED_GAP = 1.0
 #: From those, the walls are followed to the seam: a sample within `BURIED_SPACINGS` spacings
 #: of a buried one is buried when its own w reads above SEAM_LEVEL (`_buried_to_the_seam`).
 SEAM_LEVEL = 0.9
@@ -808,15 +812,26 @@ def _backed(
     the normal (`sign` = +1: along it, a face in front) up to `steps` spacings, a sample
     within `BACKED_WAY` spacings of the way (one of its `BACKED_NEIGHBOURS` nearest) faces the
     other way."""
-    backed = np.zeros(len(idx), dtype=bool)
+    return np.isfinite(_face_ahead(p, nrm, idx, spacing, tree, steps, sign))
+
+
+def _face_ahead(
+    p, nrm, idx, spacing: float, tree: cKDTree, steps: int, sign: float, near: float = 0.5
+) -> np.ndarray:
+    """For samples `idx`, the distance along `sign` times the normal to the nearest sample
+    that faces the other way (cosine below -1/2), lies within `BACKED_WAY` spacings of the way
+    (one of the `BACKED_NEIGHBOURS` nearest to a point of it, taken a spacing apart up to
+    `steps` spacings) and more than `near` spacings ahead; inf where there is none."""
+    ahead_by = np.full(len(idx), np.inf)
     m = min(BACKED_NEIGHBOURS, len(p))
-    for k in range(1, steps + 1):
+    for k in range(1, int(steps) + 1):
         dist, j = tree.query(p[idx] + sign * k * spacing * nrm[idx], k=m, workers=-1)
         dist, j = dist.reshape(len(idx), m), j.reshape(len(idx), m)
-        ahead = sign * np.einsum("ikj,ij->ik", p[j] - p[idx, None], nrm[idx]) > 0.5 * spacing
+        t = sign * np.einsum("ikj,ij->ik", p[j] - p[idx, None], nrm[idx])
         facing = np.einsum("ikj,ij->ik", nrm[j], nrm[idx]) < -0.5
-        backed |= np.any((dist <= BACKED_WAY * spacing) & ahead & facing, axis=1)
-    return backed
+        hit = (dist <= BACKED_WAY * spacing) & (t > near * spacing) & facing
+        ahead_by = np.minimum(ahead_by, np.min(np.where(hit, t, np.inf), axis=1))
+    return ahead_by
 
 
 def two_faced(points, normals, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
@@ -1292,6 +1307,15 @@ def buried_samples(
     makes cannot pass through it without a bubble (f would be 0 there and negative on both sides),
     so the fit leaves it out, and closes the pieces' union as Poisson's indicator does.
 
+    Each reading stops halfway to a face turned back towards the sample that lies nearer
+    (`BURIED_GAP`, `_face_ahead`): 4 spacings out, a reading crosses a narrow gap of air into
+    the part beyond (a cable lying on a base: the base's face under it read inside on both
+    sides, was left out, and the surface dented there), or crosses a thin part whole into the
+    air (a rod sunk in a plate: its wall inside the plate read outside behind it and was
+    fitted). Made cable on a base (10k samples): 64 -> 78 buried, precision at 0.5% 99.77% ->
+    99.83%; suzanne 10k 409 -> 341, the cow 10k 131 -> 51 (its tail lies a spacing or two
+    off the body).
+
     Why 4 spacings and 0.6: nearer than a few spacings the sum over discrete samples is rough
     (see `unit_jump`), and on a noisy scan the test fires on the noise. Counted with the
     estimated normals of a virtual range scan of the bunny (150k points, 0.15% noise): 551 of
@@ -1307,12 +1331,22 @@ def buried_samples(
     whole; on 10,000 samples, a subset of one in 8 missed small clusters: 37 of the teapot's
     238 buried samples, 56 of suzanne's 302). `tree`: a `cKDTree` of `points` to reuse."""
     points = np.asarray(points, dtype=float)
-    step = BURIED_SPACINGS * spacing * np.asarray(normals, dtype=float)
+    normals = np.asarray(normals, dtype=float)
+    tree = cKDTree(points) if tree is None else tree
+
+    def inside(idx: np.ndarray, sign: float) -> np.ndarray:
+        # The reading stops short of a face turned back towards the sample (`BURIED_GAP`):
+        # across a narrow gap of air (a cable lying on a plate) the reading 4 spacings out
+        # lands inside the other part, and the wall of a thin part is no wider than that.
+        gap = _face_ahead(points, normals, idx, spacing, tree, BURIED_SPACINGS, sign, BURIED_GAP)
+        reach = np.minimum(BURIED_SPACINGS * spacing, 0.5 * gap)
+        at = points[idx] + sign * reach[:, None] * normals[idx]
+        return winding_number(at, None, None, tree=wtree) > BURIED_LEVEL
 
     def test(idx: np.ndarray) -> np.ndarray:
         # most samples face the outside: look behind only those that do not
-        idx = idx[winding_number(points[idx] + step[idx], None, None, tree=wtree) > BURIED_LEVEL]
-        return idx[winding_number(points[idx] - step[idx], None, None, tree=wtree) > BURIED_LEVEL]
+        idx = idx[inside(idx, 1.0)]
+        return idx[inside(idx, -1.0)]
 
     reach = 2 * np.sqrt(len(points) / BURIED_TESTED) * spacing  # a few subset spacings
     buried = _found_from_subset(points, test, BURIED_TESTED, reach)

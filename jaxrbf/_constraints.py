@@ -97,15 +97,23 @@ def _patches(tree, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return dist[:, -1], kappa, has
 
 
-def _on_another_patch(q, t, idx, d, p, n, reach, kappa, has) -> np.ndarray:
-    """Which off-surface points `q` (of samples `t`, offsets `d`) lie nearer than `_PATCH_CLEAR`
-    of their offset to the patch of a neighbour `idx` other than their own origin."""
+def _on_another_patch(q, t, idx, d, p, n, reach, kappa, has, sign: float) -> np.ndarray:
+    """Which off-surface points `q` (of samples `t`, offsets `d`, on the side `sign` of their
+    samples) lie nearer than `_PATCH_CLEAR` of their offset to the patch of a neighbour `idx`
+    other than their own origin, or behind the patch of one turned back towards their sample
+    (normals' cosine below -1/2), on the side that patch calls the other one, less than their
+    offset from it: across a crevice between two parts (a cable lying on a base, its underside
+    a spacing or two above the base's face), an outside point crosses the other face through a
+    gap in its random samples, where the first test looks within half the offset only."""
     rel = q[:, None, :] - p[idx]
     h = np.einsum("kmd,kmd->km", rel, n[idx])
     t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 0.0)
-    height = np.abs(h + 0.5 * kappa[idx] * t2)
+    height = h + 0.5 * kappa[idx] * t2
     hit = (idx != t[:, None]) & has[idx] & (t2 <= reach[idx] ** 2)
-    return np.any(hit & (height < _PATCH_CLEAR * d[:, None]), axis=1)
+    near = np.abs(height) < _PATCH_CLEAR * d[:, None]
+    back = np.einsum("kmd,kd->km", n[idx], n[t]) < -0.5
+    behind = back & (sign * height < 0) & (np.abs(height) < d[:, None])
+    return np.any(hit & (near | behind), axis=1)
 
 
 def _validated_offsets(
@@ -141,7 +149,7 @@ def _validated_offsets(
             dist, idx = dist.reshape(len(t), m), idx.reshape(len(t), m)
             near = (idx[:, 0] != t) & (dist[:, 0] < d[t] * (1 - 1e-9))
             if patches is not None:
-                near |= _on_another_patch(q, t, idx, d[t], p, n, *patches)
+                near |= _on_another_patch(q, t, idx, d[t], p, n, *patches, sign)
             bad[lo : lo + _CHUNK] = near
         todo = todo[bad]
         if len(todo) == 0:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import itertools
 import sys
 
 import equinox as eqx
@@ -41,6 +42,20 @@ _PATCH_CLEAR = 0.5
 _SAME_FACE_COS = float(np.cos(np.radians(30.0)))
 #: Neighbours of each off-surface point whose patches are tested, and points per block.
 _PATCH_NEIGHBOURS = 16
+#: Thin walls and narrow gaps (exact samples only). Where the surface facing back at a sample
+#: (the other face of a wall, or across a gap) lies t away along one of its off-surface
+#: directions, that off-surface point at offset d is valued d (1 - d (1/t - 1/T)) instead of d,
+#: T being this many offsets: the quadratic profile z (t - z) / t, which vanishes on both faces
+#: with unit slope there, handed over to the signed distance d as t grows to T. The signed
+#: distance folds along the middle of a thin wall, which an interpolant smooths over, and
+#: between the samples its surface stood out of the wall. Measured on hollow spheres (10,000
+#: samples with normals, default fit; the zero set's mean offset from the true wall along
+#: 4,000 rays, outer / inner face, in point spacings, + out of the wall): wall 3.8 spacings
+#: thick, +0.066 / +0.077 (rms 0.11) with the distance, +0.002 / +0.014 (rms 0.086 / 0.070)
+#: with the profile; a thick sphere (27 spacings) unchanged. On a made cup (10,000 samples,
+#: wall 3.8 spacings): the output's mean signed distance to the true outer wall +0.047% ->
+#: +0.008% of the diagonal, Chamfer-L1 0.1588% -> 0.1506% (Poisson depth 9: 0.1577%).
+_FACING_REACH = 6.0
 _CHUNK = 65536
 
 
@@ -100,11 +115,17 @@ def _patches(tree, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def _on_another_patch(q, t, idx, d, p, n, reach, kappa, has, sign: float) -> np.ndarray:
     """Which off-surface points `q` (of samples `t`, offsets `d`, on the side `sign` of their
     samples) lie nearer than `_PATCH_CLEAR` of their offset to the patch of a neighbour `idx`
-    other than their own origin, or behind the patch of one turned back towards their sample
-    (normals' cosine below -1/2), on the side that patch calls the other one, less than their
-    offset from it: across a crevice between two parts (a cable lying on a base, its underside
-    a spacing or two above the base's face), an outside point crosses the other face through a
-    gap in its random samples, where the first test looks within half the offset only."""
+    other than their own origin, or less than their offset from the patch of one turned back
+    towards their sample (normals' cosine below -1/2), on either side of it. Behind it: across
+    a crevice between two parts (a cable lying on a base, its underside a spacing or two above
+    the base's face), an outside point crosses the other face through a gap in its random
+    samples, where the first test looks within half the offset only. In front of it: inside a
+    wall thinner than two offsets (or in a gap as narrow), the value d would overstate the
+    point's distance to the surface, and the samples of the other face, a random few
+    spacings apart, often leave none nearer than d to catch it: a hollow sphere with a wall
+    2.7 spacings thick (10,000 samples, offset 1.55 spacings) kept half of its inside points at
+    -d 1.13 spacings from the other face, and its surface stood 0.15 spacings out of the wall
+    on average (rms 0.22 spacings); tested on both sides, every one is shrunk: 0.025 (0.12)."""
     rel = q[:, None, :] - p[idx]
     h = np.einsum("kmd,kmd->km", rel, n[idx])
     t2 = np.maximum(np.einsum("kmd,kmd->km", rel, rel) - h * h, 0.0)
@@ -112,12 +133,82 @@ def _on_another_patch(q, t, idx, d, p, n, reach, kappa, has, sign: float) -> np.
     hit = (idx != t[:, None]) & has[idx] & (t2 <= reach[idx] ** 2)
     near = np.abs(height) < _PATCH_CLEAR * d[:, None]
     back = np.einsum("kmd,kd->km", n[idx], n[t]) < -0.5
-    behind = back & (sign * height < 0) & (np.abs(height) < d[:, None])
-    return np.any(hit & (near | behind), axis=1)
+    facing = back & (np.abs(height) < d[:, None])
+    return np.any(hit & (near | facing), axis=1)
+
+
+def _facing_distance(tree, p, n, offset: float, sign: float, reach, has) -> np.ndarray:
+    """For each sample of `p` (normals `n`), the distance along `sign` times its normal to the
+    nearest patch (`_patches`: `reach`, `has`) of a sample turned back towards it (normals'
+    cosine below -1/2: the other face of a thin wall, or across a narrow gap), looked for out
+    to `_FACING_REACH` offsets; inf where there is none. The patches are taken flat here."""
+    t = np.full(len(p), np.inf)
+    m = min(_PATCH_NEIGHBOURS, len(p))
+    todo = _maybe_facing(p, n, _FACING_REACH * offset)
+    for lo in range(0, len(todo), _CHUNK):
+        rows = todo[lo : lo + _CHUNK]
+        pi, ni = p[rows], n[rows]
+        best = t[rows]
+        # the neighbours of points along the ray, an offset apart, hold the patches it meets
+        for k in range(int(np.ceil(_FACING_REACH))):
+            _, idx = tree.query(pi + sign * (k + 0.5) * offset * ni, k=m, workers=-1)
+            idx = idx.reshape(len(pi), m)
+            nj = n[idx]
+            cos = np.einsum("kmd,kd->km", nj, ni)
+            back = (cos < -0.5) & has[idx]
+            along = np.einsum("kmd,kmd->km", p[idx] - pi[:, None, :], nj)
+            s = np.where(back, along / np.where(back, sign * cos, -1.0), -1.0)
+            meet = pi[:, None, :] + sign * s[..., None] * ni[:, None, :]
+            lateral2 = np.sum((meet - p[idx]) ** 2, axis=2)
+            ok = back & (s > 0) & (lateral2 <= reach[idx] ** 2)
+            best = np.minimum(best, np.where(ok, s, np.inf).min(axis=1))
+        t[rows] = best
+    return t
+
+
+def _maybe_facing(p: np.ndarray, n: np.ndarray, reach: float) -> np.ndarray:
+    """The samples that may have one turned back towards them (normals' cosine below -1/2)
+    within `reach` (indices; a superset): on a grid of cells `reach` wide, those whose normal
+    has a cosine that low with one allowed by the bounds of the normals' components over the
+    27 cells around theirs. Most samples of thick parts have none, and skip the ray tests."""
+    key = np.floor((p - p.min(axis=0)) / reach).astype(np.int64) + 1
+    dims = key.max(axis=0) + 2
+    if float(np.prod(dims.astype(float))) >= 2.0**62:  # cells too many to number: test all
+        return np.arange(len(p))
+    stride = np.cumprod(np.concatenate([dims[1:], [1]])[::-1])[::-1]
+    cells, inverse = np.unique(key @ stride, return_inverse=True)
+    lo = np.full((len(cells), p.shape[1]), np.inf)
+    hi = np.full((len(cells), p.shape[1]), -np.inf)
+    np.minimum.at(lo, inverse, n)
+    np.maximum.at(hi, inverse, n)
+    near_lo, near_hi = lo.copy(), hi.copy()
+    for step in itertools.product((-1, 0, 1), repeat=p.shape[1]):
+        other = cells + np.asarray(step) @ stride
+        at = np.minimum(np.searchsorted(cells, other), len(cells) - 1)
+        found = cells[at] == other
+        near_lo[found] = np.minimum(near_lo[found], lo[at[found]])
+        near_hi[found] = np.maximum(near_hi[found], hi[at[found]])
+    lowest = np.minimum(n * near_lo[inverse], n * near_hi[inverse]).sum(axis=1)
+    return np.flatnonzero(lowest < -0.5)
+
+
+def _facing_values(d: np.ndarray, t: np.ndarray, offset: float) -> np.ndarray:
+    """The magnitudes of off-surface values at offsets `d` whose surface faces back `t` away
+    along them (`_facing_distance`): d (1 - d (1/t - 1/T)), T = `_FACING_REACH` offsets, at
+    least d / 2 (see `_FACING_REACH`)."""
+    share = d * np.maximum(1.0 / t - 1.0 / (_FACING_REACH * offset), 0.0)
+    return d * (1.0 - np.minimum(share, 0.5))
 
 
 def _validated_offsets(
-    p: np.ndarray, n: np.ndarray, offset: float, sign: float, between: bool = True
+    p: np.ndarray,
+    n: np.ndarray,
+    offset: float,
+    sign: float,
+    between: bool = True,
+    *,
+    tree=None,
+    patches=None,
 ) -> np.ndarray:
     """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
     off-surface point is its own origin; NaN marks points that never get there (dropped).
@@ -132,11 +223,15 @@ def _validated_offsets(
     point whose height over another sample's patch is under `_PATCH_CLEAR` of its offset is
     shrunk too. `between=False` leaves that second test out: a noisy cloud's samples scatter
     about their surface by a good part of the offset, so their patches (and the curvatures
-    they are bent by) are noise (measured on virtual range scans)."""
+    they are bent by) are noise (measured on virtual range scans). `tree` (a k-d tree of `p`)
+    and `patches` (`_patches`) are built here when not given."""
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(p)
-    patches = _patches(tree, p, n) if between and len(p) > 1 else None
+    tree = cKDTree(p) if tree is None else tree
+    if patches is None and between and len(p) > 1:
+        patches = _patches(tree, p, n)
+    if not between:
+        patches = None
     d = np.full(len(p), float(offset))
     todo = np.arange(len(p))
     m = 1 if patches is None else min(_PATCH_NEIGHBOURS, len(p))
@@ -173,7 +268,8 @@ class Constraints(eqx.Module):
 
     **Fields:**
     - `points`: (N, d) constraint locations in the user's units.
-    - `values`: (N,) target values (0 on the surface, +/- the offset off it).
+    - `values`: (N,) target values (0 on the surface, +/- the offset off it; less inside a
+      thin wall or a narrow gap, see `_FACING_REACH`).
     - `n_surface`: how many of the points are on-surface (they come first).
     - `n_shrunk`, `n_dropped`: off-surface points whose offset was shrunk, or that were dropped,
       because they came closer to another part of the surface than to their own origin.
@@ -209,7 +305,9 @@ class Constraints(eqx.Module):
         - `normals`: (n, d) outward normals (any length but zero; they are normalised).
         - `offset`: d, in the points' units; default 1% of the bounding-box diagonal.
         - `validate`: shrink (or drop) off-surface points that land nearer another part of the
-          surface than their own origin (Carr et al. 2001).
+          surface than their own origin (Carr et al. 2001); with `between`, also value those
+          facing another face of the surface a few offsets away (a thin wall, a narrow gap) by
+          a profile that vanishes on both faces (`_FACING_REACH`) instead of their offset.
         - `merge_tol`: points closer than this fraction of the diagonal are merged.
         - `between`: validate against the surface between the samples too (each sample's patch
           of tangent plane, bent by its neighbours' curvature), not only against the samples;
@@ -233,17 +331,27 @@ class Constraints(eqx.Module):
         p, nrm = p[~drop], nrm[~drop]
         parts_p, parts_v = [p], [np.zeros(len(p))]
         shrunk = dropped = 0
+        tree = patches = None
+        if validate:
+            from scipy.spatial import cKDTree
+
+            tree = cKDTree(p)
+            if between and len(p) > 1:
+                patches = _patches(tree, p, nrm)
         for sign in (1.0, -1.0):
-            d = (
-                _validated_offsets(p, nrm, offset, sign, between)
-                if validate
-                else np.full(len(p), offset)
-            )
+            if validate:
+                d = _validated_offsets(p, nrm, offset, sign, between, tree=tree, patches=patches)
+            else:
+                d = np.full(len(p), offset)
             keep = np.isfinite(d)
             shrunk += int(np.sum(keep & (d < offset)))
             dropped += int(np.sum(~keep))
+            value = d
+            if patches is not None:  # exact samples: thin walls and narrow gaps
+                facing = _facing_distance(tree, p, nrm, offset, sign, patches[0], patches[2])
+                value = _facing_values(d, facing, offset)
             parts_p.append(p[keep] + sign * d[keep, None] * nrm[keep])
-            parts_v.append(sign * d[keep])
+            parts_v.append(sign * value[keep])
         return cls(
             jnp.asarray(np.concatenate(parts_p)),
             jnp.asarray(np.concatenate(parts_v)),

@@ -115,7 +115,12 @@ def widest_gap(ang: np.ndarray) -> np.ndarray:
 
 def _boundary(points, normals, k: int, gap: float, tree=None):
     """`boundary_mask`, and each point's distance to its nearest neighbour (from the same
-    neighbour query; NaN where there are too few points for the test)."""
+    neighbour query; NaN where there are too few points for the test). Each point is judged by
+    its `k` nearest neighbours on its own side: where neighbours on the other side of a thin
+    part took places among its `k` nearest, it is judged again by the `k` nearest of its `2 k`
+    on its side (with half its neighbours on the other face, the random gaps of the rest read
+    as boundaries: a closed hollow sphere with a wall 2.7 spacings thick, 10,000 samples, had
+    228 boundary points, and the probes placed around them pulled its surface about)."""
     from scipy.spatial import cKDTree
 
     p, n = np.asarray(points, dtype=float), np.asarray(normals, dtype=float)
@@ -126,27 +131,42 @@ def _boundary(points, normals, k: int, gap: float, tree=None):
     out = np.empty(len(p), dtype=bool)
     nearest = np.empty(len(p))
     for s0 in range(0, len(p), 2**17):
-        sl = slice(s0, s0 + 2**17)
-        dist, idx = tree.query(p[sl], k=k + 1, workers=-1)
-        nearest[sl] = dist[:, 1]
-        nb = idx[:, 1:]
-        d = p[nb] - p[sl, None, :]
-        cos = np.einsum("bkd,bd->bk", n[nb], n[sl])
-        same = cos >= OPPOSITE_COS
-        # Unfold each neighbour onto the point's tangent plane: its offset turned by the
-        # smallest rotation that takes its normal onto the point's (R v = v + u x v +
-        # u x (u x v) / (1 + cos), u = n_j x n_i). Across a crease the other face then lies
-        # beyond the edge, not on it; on a smooth surface nothing moves.
-        u = np.cross(n[nb], n[sl, None, :])
-        ud = np.cross(u, d)
-        d = d + ud + np.cross(u, ud) / np.where(same, 1.0 + cos, 1.0)[..., None]
-        e1, e2 = tangent_frames(n[sl])
-        ang = np.arctan2(np.einsum("bkd,bd->bk", d, e2), np.einsum("bkd,bd->bk", d, e1))
-        # neighbours on the other side of a thin part repeat the nearest same-side angle
-        first = ang[np.arange(len(ang)), np.argmax(same, axis=1)]
-        ang = np.sort(np.where(same, ang, first[:, None]), axis=1)
-        out[sl] = widest_gap(ang) > gap
+        rows = np.arange(s0, min(s0 + 2**17, len(p)))
+        dist, idx = tree.query(p[rows], k=k + 1, workers=-1)
+        nearest[rows] = dist[:, 1]
+        wide, short = _widest_gaps(p, n, rows, idx[:, 1:], k)
+        if short.any() and 2 * k < len(p):
+            again = rows[short]
+            _, idx2 = tree.query(p[again], k=2 * k + 1, workers=-1)
+            wide[short] = _widest_gaps(p, n, again, idx2[:, 1:], k)[0]
+        out[rows] = wide > gap
     return out, nearest
+
+
+def _widest_gaps(p, n, rows, nb, k: int):
+    """The widest angular gap around each point `rows` among its neighbours `nb` (nearest
+    first) on its side of the surface, at most `k` of them, and whether fewer than `k` of `nb`
+    are on its side."""
+    d = p[nb] - p[rows, None, :]
+    cos = np.einsum("bkd,bd->bk", n[nb], n[rows])
+    same = cos >= OPPOSITE_COS
+    count = np.cumsum(same, axis=1)
+    short = count[:, -1] < k
+    same &= count <= k
+    # Unfold each neighbour onto the point's tangent plane: its offset turned by the
+    # smallest rotation that takes its normal onto the point's (R v = v + u x v +
+    # u x (u x v) / (1 + cos), u = n_j x n_i). Across a crease the other face then lies
+    # beyond the edge, not on it; on a smooth surface nothing moves.
+    u = np.cross(n[nb], n[rows, None, :])
+    ud = np.cross(u, d)
+    d = d + ud + np.cross(u, ud) / np.where(cos >= OPPOSITE_COS, 1.0 + cos, 1.0)[..., None]
+    e1, e2 = tangent_frames(n[rows])
+    ang = np.arctan2(np.einsum("bkd,bd->bk", d, e2), np.einsum("bkd,bd->bk", d, e1))
+    # neighbours on the other side of a thin part (and those past the k-th on this side)
+    # repeat the nearest same-side angle
+    first = ang[np.arange(len(ang)), np.argmax(same, axis=1)]
+    ang = np.sort(np.where(same, ang, first[:, None]), axis=1)
+    return widest_gap(ang), short
 
 
 def rim_groups(

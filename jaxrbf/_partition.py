@@ -723,15 +723,17 @@ def _level_volume(
 def surface_of(xw: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The surface points and unit normals behind surface constraints (value 0 on the surface,
     +/- d at p +/- d n, each off-surface point nearest its own origin, as validated by
-    `Constraints.from_points`), or None when `xw`, `h` do not look like that (plain scattered
-    data): fewer than a fifth of the values zero, or off-surface points whose nearest surface
-    point is not at distance |h|."""
+    `Constraints.from_points`, whose thin walls value it between d / 2 and d), or None when
+    `xw`, `h` do not look like that (plain scattered data): fewer than a fifth of the values
+    zero, or off-surface points whose nearest surface point is not at a distance between |h|
+    and 2 |h|."""
     on = h == 0
     if on.sum() < 0.2 * len(h) or on.all():
         return None
     p, off, hv = xw[on], xw[~on], h[~on]
     dist, idx = cKDTree(p).query(off, workers=-1)
-    partner = np.abs(dist - np.abs(hv)) <= 1e-6 * np.abs(hv)
+    tol = 1e-6 * np.abs(hv)
+    partner = (dist >= np.abs(hv) - tol) & (dist <= 2.0 * np.abs(hv) + tol)
     if partner.mean() < 0.9:
         return None
     direction = np.sign(hv)[partner, None] * (off[partner] - p[idx[partner]])

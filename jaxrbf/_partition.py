@@ -576,7 +576,10 @@ def fit_partition(
         coarse_surface, xc, hc = None, xw[sub], h[sub]
     # this level's patches first: the volume constraints they leave to the fallback go down
     last = len(xc) <= base_size  # the last level above the global base
-    take = _level_volume(volume, xw, h, base=False, seed=seed + level, orphans=orphans, last=last)
+    reach = VOLUME_FAR_FINEST if level == 0 else VOLUME_FAR
+    take = _level_volume(
+        volume, xw, h, base=False, seed=seed + level, orphans=orphans, last=last, reach=reach
+    )
     lead = n
     if len(take):
         xw, h = np.concatenate([xw, volume[0][take]]), np.concatenate([h, volume[1][take]])
@@ -586,9 +589,11 @@ def fit_partition(
     patches = make_patches(xn, leaf=leaf, alpha=alpha, lead=lead)
     uncovered = coverage_at(patches.origin, patches.radius, xn[lead:]) < TAU
     left = take[uncovered]
-    if len(left) and last:
+    if len(left) and (last or level == 0):
         # what no level's patches hold makes patches of its own here (moved up to lead), so
-        # that the base's global fit speaks only beyond every volume constraint
+        # that the base's global fit speaks only beyond every volume constraint; and at the
+        # finest level, so that it holds the shell of probes off the samples (see
+        # `VOLUME_FAR_FINEST`)
         order = np.concatenate(
             [np.arange(lead), lead + np.flatnonzero(uncovered), lead + np.flatnonzero(~uncovered)]
         )
@@ -666,6 +671,15 @@ def fit_partition(
 #: surface: nearer ones its finer levels cover, farther ones its patches do not reach.
 VOLUME_NEAR = 1.0
 VOLUME_FAR = 4.0
+#: The finest level takes them out to this many of its spacings, the shell of probes 4.5
+#: spacings off the samples (`jaxrbf._winding.shell_probes`) included, and those its surface
+#: patches do not hold make patches of their own (as at the last level above the base): its
+#: patches then reach past the shell, and the coarser levels speak only beyond. Left to the
+#: next level, whose spacing is 2.8 times as wide, a wall thinner than that spacing (a hollow
+#: sphere, its wall 2.7 spacings thick, 10,000 samples) read inside at 449 of 200,000 random
+#: points 2-4 spacings outside it and 323 in its cavity, where the finest patches' weights sum
+#: below `TAU`; now 84 and 106.
+VOLUME_FAR_FINEST = 5.0
 #: The global base level takes at most this many volume constraints.
 BASE_VOLUME = 3000
 
@@ -689,12 +703,21 @@ def coverage_at(origin: np.ndarray, radius: np.ndarray, q: np.ndarray) -> np.nda
 
 
 def _level_volume(
-    volume, xw: np.ndarray, h: np.ndarray, *, base: bool, seed: int, orphans=None, last=False
+    volume,
+    xw: np.ndarray,
+    h: np.ndarray,
+    *,
+    base: bool,
+    seed: int,
+    orphans=None,
+    last=False,
+    reach: float = VOLUME_FAR,
 ) -> np.ndarray:
     """The indices into `volume` (points, values) of the volume constraints of a level whose
     constraints are `xw`, `h` (see `fit_partition`), with the finer levels' `orphans` (indices)
     among them: at the base they come first, within `BASE_VOLUME`. The `last` level above the
-    base takes every one beyond `VOLUME_NEAR` of its spacings, however far."""
+    base takes every one beyond `VOLUME_NEAR` of its spacings, however far; the others those
+    within `reach` of them."""
     none = np.zeros(0, dtype=np.int64)
     if volume is None or len(volume[1]) == 0:
         return none
@@ -708,7 +731,7 @@ def _level_volume(
     keep = far >= VOLUME_NEAR * spacing
     if not base:
         if not last:
-            keep &= far <= VOLUME_FAR * spacing
+            keep &= far <= reach * spacing
         return np.union1d(np.flatnonzero(keep), orphans)
     rng = np.random.default_rng(seed)
     if len(orphans) >= BASE_VOLUME:

@@ -42,6 +42,7 @@ _PATCH_CLEAR = 0.5
 _SAME_FACE_COS = float(np.cos(np.radians(30.0)))
 #: Neighbours of each off-surface point whose patches are tested, and points per block.
 _PATCH_NEIGHBOURS = 16
+_CHUNK = 65536
 #: Thin walls and narrow gaps (exact samples only). Where the surface facing back at a sample
 #: (the other face of a wall, or across a gap) lies t away along one of its off-surface
 #: directions, that off-surface point at offset d is valued d (1 - d (1/t - 1/T)) instead of d,
@@ -49,14 +50,16 @@ _PATCH_NEIGHBOURS = 16
 #: with unit slope there, handed over to the signed distance d as t grows to T. The signed
 #: distance folds along the middle of a thin wall, which an interpolant smooths over, and
 #: between the samples its surface stood out of the wall. Measured on hollow spheres (10,000
-#: samples with normals, default fit; the zero set's mean offset from the true wall along
-#: 4,000 rays, outer / inner face, in point spacings, + out of the wall): wall 3.8 spacings
-#: thick, +0.066 / +0.077 (rms 0.11) with the distance, +0.002 / +0.014 (rms 0.086 / 0.070)
-#: with the profile; a thick sphere (27 spacings) unchanged. On a made cup (10,000 samples,
-#: wall 3.8 spacings): the output's mean signed distance to the true outer wall +0.047% ->
-#: +0.008% of the diagonal, Chamfer-L1 0.1588% -> 0.1506% (Poisson depth 9: 0.1577%).
+#: samples with normals, default fit; along 4,000 rays, the zero set's mean offset from each
+#: face, outer / inner, in point spacings, + out of the wall), with the profile and the
+#: shrinking on either side of a facing patch (`_on_another_patch`): a wall 3.8 spacings thick
+#: +0.066 / +0.077 (rms 0.11) -> +0.002 / +0.014 (rms 0.086 / 0.070), a thick sphere (27
+#: spacings) unchanged. With, besides, boundaries judged by the neighbours on a point's own
+#: side (`jaxrbf._holes`) and the finest level holding the probes' shell
+#: (`jaxrbf._partition.VOLUME_FAR_FINEST`): wall 2.7 spacings +0.150 / +0.177 (rms 0.22 /
+#: 0.24) -> +0.003 / +0.009 (0.078 / 0.074); 3.8 spacings -> +0.022 / +0.031 (0.063 / 0.067);
+#: the thick sphere -0.001 / +0.002 (0.008 / 0.011) -> -0.003 / +0.005 (0.009 / 0.012).
 _FACING_REACH = 6.0
-_CHUNK = 65536
 
 
 def _unit_normals(normals: np.ndarray, n: int, dim: int) -> np.ndarray:

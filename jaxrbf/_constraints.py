@@ -173,7 +173,7 @@ def _maybe_facing(p: np.ndarray, n: np.ndarray, reach: float) -> np.ndarray:
     """The samples that may have one turned back towards them (normals' cosine below -1/2)
     within `reach` (indices; a superset): on a grid of cells `reach` wide, those whose normal
     has a cosine that low with one allowed by the bounds of the normals' components over the
-    27 cells around theirs. Most samples of thick parts have none, and skip the ray tests."""
+    3^d cells around theirs. Most samples of thick parts have none, and skip the ray tests."""
     key = np.floor((p - p.min(axis=0)) / reach).astype(np.int64) + 1
     dims = key.max(axis=0) + 2
     if float(np.prod(dims.astype(float))) >= 2.0**62:  # cells too many to number: test all

@@ -140,14 +140,14 @@ def _on_another_patch(q, t, idx, d, p, n, reach, kappa, has, sign: float) -> np.
     return np.any(hit & (near | facing), axis=1)
 
 
-def _facing_distance(tree, p, n, offset: float, sign: float, reach, has) -> np.ndarray:
+def _facing_distance(tree, p, n, offset: float, sign: float, reach, has, todo) -> np.ndarray:
     """For each sample of `p` (normals `n`), the distance along `sign` times its normal to the
     nearest patch (`_patches`: `reach`, `has`) of a sample turned back towards it (normals'
     cosine below -1/2: the other face of a thin wall, or across a narrow gap), looked for out
-    to `_FACING_REACH` offsets; inf where there is none. The patches are taken flat here."""
+    to `_FACING_REACH` offsets; inf where there is none, and for the samples not in `todo`
+    (`_maybe_facing`, indices). The patches are taken flat here."""
     t = np.full(len(p), np.inf)
     m = min(_PATCH_NEIGHBOURS, len(p))
-    todo = _maybe_facing(p, n, _FACING_REACH * offset)
     for lo in range(0, len(todo), _CHUNK):
         rows = todo[lo : lo + _CHUNK]
         pi, ni = p[rows], n[rows]
@@ -204,14 +204,7 @@ def _facing_values(d: np.ndarray, t: np.ndarray, offset: float) -> np.ndarray:
 
 
 def _validated_offsets(
-    p: np.ndarray,
-    n: np.ndarray,
-    offset: float,
-    sign: float,
-    between: bool = True,
-    *,
-    tree=None,
-    patches=None,
+    p: np.ndarray, n: np.ndarray, offset: float, sign: float, tree, patches
 ) -> np.ndarray:
     """Carr et al. (2001): shrink each off-surface offset until the nearest input point of the
     off-surface point is its own origin; NaN marks points that never get there (dropped).
@@ -224,17 +217,10 @@ def _validated_offsets(
     normal curvature of its neighbours on the same face (a paraboloid, so that a curved
     surface's patches do not stick out of it and a sphere's offsets stay whole), and an offset
     point whose height over another sample's patch is under `_PATCH_CLEAR` of its offset is
-    shrunk too. `between=False` leaves that second test out: a noisy cloud's samples scatter
-    about their surface by a good part of the offset, so their patches (and the curvatures
-    they are bent by) are noise (measured on virtual range scans). `tree` (a k-d tree of `p`)
-    and `patches` (`_patches`) are built here when not given."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(p) if tree is None else tree
-    if patches is None and between and len(p) > 1:
-        patches = _patches(tree, p, n)
-    if not between:
-        patches = None
+    shrunk too. `tree` is a k-d tree of `p`, `patches` the samples' patches (`_patches`), or
+    None to leave that second test out: a noisy cloud's samples scatter about their surface by
+    a good part of the offset, so their patches (and the curvatures they are bent by) are noise
+    (measured on virtual range scans)."""
     d = np.full(len(p), float(offset))
     todo = np.arange(len(p))
     m = 1 if patches is None else min(_PATCH_NEIGHBOURS, len(p))
@@ -341,9 +327,11 @@ class Constraints(eqx.Module):
             tree = cKDTree(p)
             if between and len(p) > 1:
                 patches = _patches(tree, p, nrm)
+                # the samples that may face another part within reach: the same for both sides
+                facing_todo = _maybe_facing(p, nrm, _FACING_REACH * offset)
         for sign in (1.0, -1.0):
             if validate:
-                d = _validated_offsets(p, nrm, offset, sign, between, tree=tree, patches=patches)
+                d = _validated_offsets(p, nrm, offset, sign, tree, patches)
             else:
                 d = np.full(len(p), offset)
             keep = np.isfinite(d)
@@ -351,7 +339,9 @@ class Constraints(eqx.Module):
             dropped += int(np.sum(~keep))
             value = d
             if patches is not None:  # exact samples: thin walls and narrow gaps
-                facing = _facing_distance(tree, p, nrm, offset, sign, patches[0], patches[2])
+                facing = _facing_distance(
+                    tree, p, nrm, offset, sign, patches[0], patches[2], facing_todo
+                )
                 value = _facing_values(d, facing, offset)
             parts_p.append(p[keep] + sign * d[keep, None] * nrm[keep])
             parts_v.append(sign * value[keep])

@@ -149,17 +149,17 @@ def _widest_gaps(p, n, rows, nb, k: int):
     are on its side."""
     d = p[nb] - p[rows, None, :]
     cos = np.einsum("bkd,bd->bk", n[nb], n[rows])
-    same = cos >= OPPOSITE_COS
-    count = np.cumsum(same, axis=1)
+    side = cos >= OPPOSITE_COS
+    count = np.cumsum(side, axis=1)
     short = count[:, -1] < k
-    same &= count <= k
+    same = side & (count <= k)
     # Unfold each neighbour onto the point's tangent plane: its offset turned by the
     # smallest rotation that takes its normal onto the point's (R v = v + u x v +
     # u x (u x v) / (1 + cos), u = n_j x n_i). Across a crease the other face then lies
     # beyond the edge, not on it; on a smooth surface nothing moves.
     u = np.cross(n[nb], n[rows, None, :])
     ud = np.cross(u, d)
-    d = d + ud + np.cross(u, ud) / np.where(cos >= OPPOSITE_COS, 1.0 + cos, 1.0)[..., None]
+    d = d + ud + np.cross(u, ud) / np.where(side, 1.0 + cos, 1.0)[..., None]
     e1, e2 = tangent_frames(n[rows])
     ang = np.arctan2(np.einsum("bkd,bd->bk", d, e2), np.einsum("bkd,bd->bk", d, e1))
     # neighbours on the other side of a thin part (and those past the k-th on this side)

@@ -6,15 +6,6 @@ density and the kernel, so it is chosen by the tuning objective (`jaxrbf.objecti
 that follows the noise passes further from held-out samples (and its normals turn further from
 theirs) than one that follows the surface underneath.
 
-The normals' term counts only where the normals came with the input. Normals estimated from the
-cloud (a plane fit of its 30 nearest neighbours) are a smoothing of the same points at the scale
-of that neighbourhood, whatever the noise: a fit scored against them wins by being as smooth as
-they are. On a real scan of a leg (noise 0.14 point spacings) that term chose a lambda 300 times
-larger than the distances alone do, and left the surface a median 1.1 noise sigmas from its own
-points (a surface that had removed only the noise would be 0.67 sigma from them, and the
-distances' choice was 0.64) -- farther from the scan than Poisson's. On the noisier virtual range
-scans the two choices are the same.
-
 The choice is made on a few crops of the cloud at its own density (the k nearest neighbours of a
 random sample): a crop holds as many points per patch as the real fit, so the lambda it picks means
 the same there, whether the full fit is dense or a partition of unity, for any number of points.
@@ -91,7 +82,7 @@ class SmoothingReport:
     `at_top`: the choice is still the largest candidate (the held-out error did not tell a
     smaller lambda apart: very noisy or misregistered input, or `MAX_EXTENSIONS` reached);
     `saturated`: the grid reached `SATURATION` times the crops' largest eigenvalue, above which
-    the fit no longer changes; `normals_given`: the held-out error counted the normals' term."""
+    the fit no longer changes."""
 
     smoothing: float
     relative: float
@@ -104,7 +95,6 @@ class SmoothingReport:
     extended: int = 0
     at_top: bool = False
     saturated: bool = False
-    normals_given: bool = True
 
     def summary(self) -> str:
         obj = np.asarray(self.objective)
@@ -116,9 +106,7 @@ class SmoothingReport:
         )
         chosen = int(np.argmin(np.abs(np.asarray(self.grid) - self.relative)))
         return (
-            f"denoise: {kind}; held-out error"
-            + ("" if self.normals_given else " (distances only: the normals were estimated)")
-            + f" on {self.crops} crops of {self.crop_points:,} "
+            f"denoise: {kind}; held-out error on {self.crops} crops of {self.crop_points:,} "
             f"points ({self.seconds:.1f} s): {obj[0]:.4f} at lambda 0, minimum {obj[best]:.4f} at "
             f"{self.grid[best]:.1e} (standard error {self.standard_error:.4f}), {obj[chosen]:.4f} "
             "at the chosen lambda (the largest within one standard error of the minimum)"
@@ -174,16 +162,13 @@ def choose_smoothing(
     crop_points: int = CROP_POINTS,
     grid=GRID,
     seed: int = 0,
-    normals_given: bool = True,
     verbose: bool = False,
 ) -> SmoothingReport:
     """The smoothing lambda of a surface fit of `points` with outward `normals`, chosen by the
     held-out error (`jaxrbf.objectives.held_out_error`) on `crops` crops of `crop_points` points each.
 
     **Arguments:** `kernel`, `offset` (d), `radius` (kernels with one) and `degree` as the fit
-    will use them, in the points' units; `grid`: candidate lambdas in units of diagonal^h;
-    `normals_given`: False where `normals` were estimated from `points`, which leaves their term
-    out of the held-out error (see the module's docstring).
+    will use them, in the points' units; `grid`: candidate lambdas in units of diagonal^h.
 
     **Returns:** a `SmoothingReport`; its `smoothing` goes to `fit(..., smoothing=...)`.
     """
@@ -206,10 +191,7 @@ def choose_smoothing(
     kern = make_kernel(kernel, radius)
     unit = diagonal(p) ** kern.homogeneity
     parts = _crops(p, max(1, int(crops)), size, seed)
-    setups = [
-        _Crop(p[idx], nrm[idx], inner, kern, offset, degree, seed, normals_given)
-        for idx, inner in parts
-    ]
+    setups = [_Crop(p[idx], nrm[idx], inner, kern, offset, degree, seed) for idx, inner in parts]
     # (held-out points, candidates), the crops' held-out points pooled
     per_point = np.concatenate([c.errors(np.asarray(grid) * unit) for c in setups], axis=0)
     if not np.isfinite(per_point.mean(axis=0)).any():
@@ -253,26 +235,24 @@ def choose_smoothing(
         extended=extended,
         at_top=chosen == len(grid) - 1 and len(grid) > 1,
         saturated=grid[-1] >= ceiling,
-        normals_given=bool(normals_given),
     )
     if verbose:
         log(report.summary())
     return report
 
 
-def _crop_errors(pc, nc, inner, kern, offset, degree, lams, seed, normals_given=True):
+def _crop_errors(pc, nc, inner, kern, offset, degree, lams, seed):
     """Held-out errors (points, candidates) of one crop: fit on all but a third of its interior
-    points (`inner`), measure `surface_error`'s two terms at those (the distance only where not
-    `normals_given`), for every lambda in `lams` (the points' units) at once; inf rows where a
-    candidate failed."""
-    return _Crop(pc, nc, inner, kern, offset, degree, seed, normals_given).errors(lams)
+    points (`inner`), measure `surface_error`'s two terms at those, for every lambda in `lams`
+    (the points' units) at once; inf rows where a candidate failed."""
+    return _Crop(pc, nc, inner, kern, offset, degree, seed).errors(lams)
 
 
 class _Crop:
     """One crop's fit setup and the eigendecomposition of its system (see the module's
     docstring), kept so that further lambdas (an extension of the grid) cost no new O(n^3) step."""
 
-    def __init__(self, pc, nc, inner, kern, offset, degree, seed, normals_given=True):
+    def __init__(self, pc, nc, inner, kern, offset, degree, seed):
         from ._difffit import unit_box
         from .objectives import capped_constraints, point_spacing
 
@@ -296,7 +276,6 @@ class _Crop:
         self.tp = jnp.asarray((pc[test] - shift) / scale)
         self.tn = jnp.asarray(nc[test])
         self.length = jnp.asarray(point_spacing(pc) / scale)
-        self.normal_weight = jnp.asarray(1.0 if normals_given else 0.0)
         self.spectrum = _spectrum(
             self.kern, self.xn, jnp.asarray(hp), jnp.asarray(np.arange(m) < n), degree
         )
@@ -309,15 +288,7 @@ class _Crop:
     def errors(self, lams) -> np.ndarray:
         lam = jnp.asarray(np.asarray(lams, dtype=float) / self.scale**self.homogeneity)
         err = _path_errors(
-            self.kern,
-            self.xn,
-            self.spectrum,
-            lam,
-            self.tp,
-            self.tn,
-            self.length,
-            self.normal_weight,
-            self.degree,
+            self.kern, self.xn, self.spectrum, lam, self.tp, self.tn, self.length, self.degree
         )
         return np.asarray(err)
 
@@ -351,9 +322,9 @@ def _spectrum(kern, xn, h, mask, degree: int):
 
 
 @eqx.filter_jit
-def _path_errors(kern, xn, spectrum, lams, tp, tn, length, normal_weight, degree: int):
-    """(test points, lambdas) held-out errors |f| / |grad f| / length + normal_weight * max(0,
-    1 - cos(grad f, n)) of the fits with every smoothing in `lams`, from the crop's `_spectrum`."""
+def _path_errors(kern, xn, spectrum, lams, tp, tn, length, degree: int):
+    """(test points, lambdas) held-out errors |f| / |grad f| / length + max(0, 1 - cos(grad f, n))
+    of the fits with every smoothing in `lams`, from the crop's `_spectrum`."""
     from ._model import forward_value_and_gradient, kernel_block, poly_basis
     from .objectives import pointwise_errors
 
@@ -374,5 +345,5 @@ def _path_errors(kern, xn, spectrum, lams, tp, tn, length, normal_weight, degree
     t, d = tp.shape
     f, g = forward_value_and_gradient(values, tp)  # flattened over (t, lambdas)
     dist, mis = pointwise_errors(f.reshape(t, -1), g.reshape(t, -1, d), tn[:, None, :], length)
-    err = dist + normal_weight * mis
+    err = dist + mis
     return jnp.where(ok[None, :] & jnp.all(jnp.isfinite(err), axis=0)[None, :], err, jnp.inf)

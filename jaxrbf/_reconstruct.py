@@ -683,7 +683,6 @@ def fit_surface_samples(
             radius=r,
             degree=degree,
             seed=seed,
-            normals_given=given,
             verbose=verbose,
         ).smoothing
     if solver is None and method != "partition":

@@ -82,6 +82,33 @@ def test_choice_is_the_largest_lambda_within_one_standard_error():
 
 
 @pytest.mark.slow
+def test_choice_is_bounded_by_the_noise():
+    """The smoothing is lowered while the crops' fits pass further from their own samples than
+    DISCREPANCY noise sigmas (a surface that removed just the noise lies 0.6745 sigma from them)."""
+    from jaxrbf._denoise import DISCREPANCY
+
+    noisy, true = ellipsoid_cloud(1500, 0.008, seed=5)
+    kw = dict(offset=0.02, crops=2, crop_points=600)
+    free = jaxrbf.choose_smoothing(noisy, true, noise=1e9, **kw)  # a bound that never binds
+    assert free.lowered_from is None and free.relative > 0
+    # the noise estimated from the points: Gaussian noise explains the held-out error's choice
+    est = jaxrbf.choose_smoothing(noisy, true, **kw)
+    assert est.relative == free.relative and est.lowered_from is None
+    assert 0.5 < est.residual <= DISCREPANCY and np.isclose(est.noise, 0.008 * DIAG, rtol=0.3)
+    # told the noise is a fifth of that, the choice goes down to a fit that close
+    tight = jaxrbf.choose_smoothing(noisy, true, noise=0.0016 * DIAG, **kw)
+    assert tight.relative < free.relative
+    assert tight.lowered_from[0] == free.relative and tight.lowered_from[1] > DISCREPANCY
+    assert tight.residual <= DISCREPANCY
+    assert "lowered from lambda" in tight.summary()
+    # it is the largest candidate within the bound: the next one up passes further
+    up = jaxrbf.choose_smoothing(
+        noisy, true, noise=0.0016 * DIAG, grid=(tight.relative * 1.78,), **kw
+    )
+    assert up.lowered_from is not None or up.residual > DISCREPANCY
+
+
+@pytest.mark.slow
 def test_denoised_fit_is_nearer_the_true_surface():
     noisy, true = ellipsoid_cloud(2000, 0.01, seed=1)
     plain = jaxrbf.fit_surface(noisy, true, offset=0.02, denoise=False)  # (default: "auto")

@@ -122,7 +122,12 @@ class SmoothingReport:
         obj = np.asarray(self.objective)
         best = int(np.argmin(obj))
         kind = (
-            "interpolation (no smoothing: the held-out error does not improve with it)"
+            "interpolation (no smoothing: "
+            + (
+                "every smoothing leaves the crops' fits too far from their samples)"
+                if self.lowered_from is not None
+                else "the held-out error does not improve with it)"
+            )
             if self.smoothing == 0
             else f"lambda = {self.relative:.2e} x diagonal^h ({self.smoothing:.3e} in the points' units)"
         )
@@ -131,7 +136,11 @@ class SmoothingReport:
             f"denoise: {kind}; held-out error on {self.crops} crops of {self.crop_points:,} "
             f"points ({self.seconds:.1f} s): {obj[0]:.4f} at lambda 0, minimum {obj[best]:.4f} at "
             f"{self.grid[best]:.1e} (standard error {self.standard_error:.4f}), {obj[chosen]:.4f} "
-            "at the chosen lambda (the largest within one standard error of the minimum)"
+            + (
+                "at the chosen lambda (the largest within one standard error of the minimum)"
+                if self.lowered_from is None
+                else "at the chosen lambda (below the one-standard-error choice: the noise bounds it)"
+            )
             + self._top_note()
             + self._noise_note()
         )

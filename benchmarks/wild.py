@@ -59,7 +59,11 @@ skipped, and the skipped ones are listed at the end):
    misregistration, which turns them with the points; written as a PLY with nx ny nz. Both
    methods get the same points and normals.
 3. the two real bare clouds `scanned-leg.xyz` (`leg`) and `anchor.xyz` (`anchor`): no normals
-   and no reference surface. jaxrbf gets the file; Open3D as in 2.
+   and no reference surface. jaxrbf gets the file; Open3D as in 2. The same clouds with normals
+   (`leg-normals`, `anchor-normals`, kind "ncloud": a real scan with its software's normals):
+   Open3D's estimate (`estimate_normals(KDTreeSearchParamKNN(30))`,
+   `orient_normals_consistent_tangent_plane(30)`) written as a PLY with nx ny nz; both methods
+   get the same points and normals.
 4. surfaces made here (kind "made", no file needed), of kinds the shared meshes lack, sampled as
    in 1 with their true normals: `cut-sphere-10k`, a sphere with CUT_AWAY = 20% of its area cut
    away (a bowl, a vase, a helmet: one opening a fifth of the surface), and
@@ -184,7 +188,8 @@ WOUND_PARTS = (1, 3, 5)  # the made wound figure's parts wound inside out (2 lim
 class Input:
     name: str
     kind: str  # "mesh": sampled with true normals; "scan": virtual scanner ("nscan": with the
-    # scanner's normals); "cloud": a real scan
+    # scanner's normals); "cloud": a real scan ("ncloud": with normals estimated and oriented by
+    # Open3D, as a scanner's software gives them)
     file: str
     points: int = 0  # surface samples, for kinds "mesh", "holed" and "made"
     noise: float = 0.0  # kind "made": Gaussian noise on the samples, fraction of the diagonal
@@ -213,6 +218,8 @@ class Input:
         if self.kind == "made":
             noise = f", {self.noise:.2%} noise" if self.noise else ""
             return f"{self.points:,} samples of a made {self.file} with true normals{noise}"
+        if self.kind == "ncloud":
+            return f"{self.file} with Open3D's estimated, oriented normals, no reference"
         return f"{self.file} as is, no normals, no reference"
 
 
@@ -244,6 +251,8 @@ INPUTS = (
     Input("nscan-spot", "nscan", "spot.obj"),
     Input("leg", "cloud", "scanned-leg.xyz"),
     Input("anchor", "cloud", "anchor.xyz"),
+    Input("leg-normals", "ncloud", "scanned-leg.xyz"),
+    Input("anchor-normals", "ncloud", "anchor.xyz"),
     # kinds the shared meshes lack, made here: one large opening; an open, noisy terrain
     Input("cut-sphere-10k", "made", "cut-sphere", 10_000),
     Input("noisy-terrain-20k", "made", "terrain", 20_000, noise=TERRAIN_NOISE),
@@ -512,6 +521,12 @@ def prepare(inp: Input, workdir: Path, seed: int):
     path = DATA_DIR / inp.file
     if inp.kind == "cloud":
         return path, io.read_points(path).points, None, None, None, {}
+    if inp.kind == "ncloud":
+        points = io.read_points(path).points
+        normals = open3d_normals(points)
+        out = workdir / f"{inp.name}.ply"
+        io.write_points(out, points, normals)
+        return out, points, normals, None, None, {}
     if inp.kind == "made":
         ref = made_mesh(inp.file, seed)
         points, normals = metrics.sample_surface(ref, inp.points, seed=seed)
@@ -586,6 +601,17 @@ def run_jaxrbf(source: Path, out: Path, log: Path, extra: list[str], timeout: fl
     except (OSError, jaxrbf.InputError) as exc:
         return dict(ok=False, seconds=seconds, error=f"exit 0 but {out.name} unreadable: {exc}")
     return dict(ok=True, seconds=seconds, mesh=mesh)
+
+
+def open3d_normals(points: np.ndarray) -> np.ndarray:
+    """Open3D's normals of `points`: plane fits of NORMAL_KNN neighbours, oriented consistently
+    over their tangent planes (what Poisson gets where an input has none)."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_KNN))
+    pc.orient_normals_consistent_tangent_plane(NORMAL_KNN)
+    return np.asarray(pc.normals, dtype=np.float64)
 
 
 def run_poisson(points: np.ndarray, normals: np.ndarray | None, out: Path | None) -> dict:

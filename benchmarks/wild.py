@@ -623,12 +623,10 @@ def run_poisson(points: np.ndarray, normals: np.ndarray | None, out: Path | None
 
     t0 = time.perf_counter()
     try:
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
         if normals is None:
-            pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_KNN))
-            pc.orient_normals_consistent_tangent_plane(NORMAL_KNN)
-        else:
-            pc.normals = o3d.utility.Vector3dVector(normals)
+            normals = open3d_normals(points)
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        pc.normals = o3d.utility.Vector3dVector(normals)
         m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=POISSON_DEPTH)
     except Exception as exc:  # a benchmark row, not a crash
         error = f"{type(exc).__name__}: {exc}"

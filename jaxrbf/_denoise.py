@@ -38,7 +38,7 @@ the noise, of sigma across the surface (`jaxrbf.estimate_noise`), lies a median 
 the samples (the median of |N(0, 1)|); where the crops' fits at the chosen lambda pass a median
 further than `DISCREPANCY` = 1 sigma from their own samples, the choice goes down the grid to the
 largest lambda within it. On the noisy meshes and virtual scans of the benchmarks the choice lands
-at 0.55-0.70 sigma and stands. On a real scan of a leg (noise 0.14 point spacings) it was 1.96
+at 0.55-0.78 sigma and stands. On a real scan of a leg (noise 0.14 point spacings) it was 1.96
 sigma (lambda 1e-5 diagonal^3; the full fit 1.1 sigma from the scan, farther than Poisson's
 surface), and is lowered to 3.2e-8 (0.88 sigma).
 
@@ -86,7 +86,7 @@ PAD = 128
 #: The choice is lowered while the crops' fits pass further than this many noise sigmas (median)
 #: from their own samples. A surface that removed exactly the (Gaussian) noise lies a median
 #: 0.6745 sigma from them (the median of |N(0, 1)|), and the held-out error's choices on noisy
-#: inputs land at 0.55-0.70 sigma: 1 is a bound, not a target (more than half of the samples
+#: inputs land at 0.55-0.78 sigma: 1 is a bound, not a target (more than half of the samples
 #: further than one sigma, where the noise puts 32% of them), which none of those choices meets.
 DISCREPANCY = 1.0
 

@@ -428,11 +428,12 @@ def _path_residuals(kern, xn, spectrum, lams, x, degree: int):
     """(points, lambdas) first-order distances |f| / |grad f| from the crop's own samples `x` to
     the fits of every smoothing in `lams` (inf where a candidate failed)."""
     from ._model import forward_value_and_gradient
+    from .objectives import first_order_distance
 
     values, ok = _path_fits(kern, xn, spectrum, lams, degree)
     t, d = x.shape
     f, g = forward_value_and_gradient(values, x)  # flattened over (t, lambdas)
-    dist = jnp.abs(f.reshape(t, -1)) / jnp.sqrt(jnp.sum(g.reshape(t, -1, d) ** 2, axis=-1) + 1e-300)
+    dist = first_order_distance(f.reshape(t, -1), g.reshape(t, -1, d))
     return jnp.where(ok[None, :], dist, jnp.inf)
 
 

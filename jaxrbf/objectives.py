@@ -116,15 +116,24 @@ def surface_error(model, points, normals, length, *, probes=None, residuals: boo
     return _error_terms(dist, mis, length, fq, side, residuals)
 
 
+def _gradient_norm(g):
+    return jnp.sqrt(jnp.sum(g * g, axis=-1) + 1e-300)
+
+
+def first_order_distance(f, g):
+    """|f| / |grad f| from values `f` (...) and gradients `g` (..., d): the first-order distance
+    to the zero set, in the points' units."""
+    return jnp.abs(f) / _gradient_norm(g)
+
+
 def pointwise_errors(f, g, normals, length):
     """The two terms of `surface_error` at each point, unaveraged: (|f| / |grad f| / `length`,
     max(0, 1 - cos(grad f, n))), from values `f` (...), gradients `g` (..., d) and `normals`
     broadcastable to `g` (the coordinate axis last)."""
     nrm = jnp.asarray(normals, dtype=float)
     nrm = nrm / jnp.linalg.norm(nrm, axis=-1, keepdims=True)
-    gn = jnp.sqrt(jnp.sum(g * g, axis=-1) + 1e-300)
-    dist = jnp.abs(f) / gn / length
-    mis = jnp.maximum(1.0 - jnp.sum(g * nrm, axis=-1) / gn, 0.0)
+    dist = first_order_distance(f, g) / length
+    mis = jnp.maximum(1.0 - jnp.sum(g * nrm, axis=-1) / _gradient_norm(g), 0.0)
     return dist, mis
 
 

@@ -670,3 +670,19 @@ def test_script_hostile_size_and_bad_option(tmp_path):
     assert_refused(r.returncode, r.stderr, "--points", "invalid int value: 'many'")
     assert (tmp_path / "out.ply").read_bytes() == PRECIOUS
     assert sorted(os.listdir(tmp_path)) == ["huge.npz", "out.ply"]
+
+
+@pytest.mark.parametrize("repeated", [150, 500])  # some points twice, and every one
+def test_repeated_points_of_a_bare_cloud_are_kept_once(capsys, repeated):
+    # a bare cloud with positions given twice (scans merged where they overlap, a file written
+    # out twice): merged before anything counts neighbours. Before, every point twice was
+    # refused by the noise estimate ("more than half of the points have a duplicate"), and 30%
+    # of them twice made a closed sphere read as full of holes
+    from jaxrbf import surface_from
+
+    p, _ = sphere(500)
+    cloud = np.vstack([p, p[:repeated]])
+    q, n, _ = surface_from(cloud, remove_outliers="auto", verbose=True)
+    assert len(q) == 500 and len(np.unique(q, axis=0)) == 500
+    assert f"{repeated:,} repeated points" in capsys.readouterr().err
+    assert np.all(np.einsum("ij,ij->i", n, q) > 0.9)  # normals estimated and turned outward

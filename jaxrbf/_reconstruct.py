@@ -25,9 +25,17 @@ from ._prepare import (
 )
 from .objectives import point_spacing
 
-#: Surface points used by default: 4,000 points give 12,004 unknowns, a dense solve of ~15 s on a
-#: 2-core CPU. Larger inputs are subsampled to this unless `points` says otherwise.
+#: Surface points of a point cloud for the dense method: 4,000 points give 12,004 unknowns, a
+#: dense solve of ~15 s on a 2-core CPU (`subsample`).
 DEFAULT_POINTS = 4000
+#: Surface samples of a mesh by default: as many as it has vertices (the detail it was made with),
+#: at least MESH_MIN_POINTS (a low-poly model's large faces, a many-piece model's small pieces)
+#: and at most MESH_MAX_POINTS. Measured on the beetle given as its .obj (1,148 vertices, 33 open
+#: pieces): 1,148 samples gave Chamfer-L1 0.248% / NC 0.932 / precision 83.9%, 10,000 give
+#: 0.113% / 0.967 / 99.5% (4,000 samples, the default before, were also fewer than the bunny's
+#: 35,947 vertices and lost its detail).
+MESH_MIN_POINTS = 10_000
+MESH_MAX_POINTS = 100_000
 EXAMPLES = ("bunny",)
 #: With the partition method, the default offset is at most this many median point spacings.
 PARTITION_OFFSET_SPACINGS = 2.0
@@ -194,11 +202,13 @@ def _surface(
                 f"{name}: {turned:,} of {len(f):,} faces were wound against their neighbours; "
                 "turned so that each connected piece is wound one way"
             )
-        k = points if points is not None else min(len(v), DEFAULT_POINTS)
-        if verbose and points is None and len(v) > DEFAULT_POINTS:
-            log(
-                f"{name}: using {DEFAULT_POINTS:,} surface samples of {len(v):,} vertices (set --points)"
-            )
+        k = points
+        if k is None:
+            k = min(max(len(v), MESH_MIN_POINTS), MESH_MAX_POINTS)
+            if subsample:
+                k = min(k, DEFAULT_POINTS)
+            if verbose:
+                log(f"{name}: {k:,} surface samples of its {len(v):,} vertices (set --points)")
         p, n = mesh_samples(v, f, points=k, sampling=sampling, seed=seed)
         return p, n, diagonal(v), False, True
     if isinstance(data, io.Polyline):

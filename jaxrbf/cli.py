@@ -26,8 +26,8 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--points",
         type=int,
-        help="surface points to use (default: 4000 samples of a mesh; every point of a point "
-        "cloud, at most 4000 with --method dense)",
+        help="surface points to use (default: as many samples of a mesh as it has vertices, "
+        "10,000 to 100,000; every point of a point cloud; at most 4000 with --method dense)",
     )
     g.add_argument(
         "--method",

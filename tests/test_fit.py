@@ -1,5 +1,7 @@
+import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import data_file
 from helpers import franke
 from scipy.interpolate import RBFInterpolator
 
@@ -188,3 +190,37 @@ def test_gmres_iteration_cap_is_in_iterations():
     # 5 iterations cannot solve a 300-point cubic system: a clear error, not a silent bad fit
     with pytest.raises(SolveError, match="gmres stopped after 1 restart cycles"):
         jaxrbf.fit(X, Y, solver="gmres", max_steps=5)
+
+
+def test_a_residual_within_the_rounding_of_large_weights_is_accepted():
+    # the floor is what rounding alone leaves when B x is evaluated with these weights
+    from jaxrbf._fit import FLOOR_TOL, RESIDUAL_TOL, allowed_residual
+    from jaxrbf._system import rounding_floor
+
+    m = jaxrbf.fit(X, Y)
+    x = np.asarray(m.centres)
+    w, a = np.asarray(m.weights), np.asarray(m.coeffs)
+    r = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    aw = np.abs(m.kernel(r)) @ np.abs(w) + np.abs(np.c_[np.ones(len(x)), x]) @ np.abs(a)
+    want = np.sqrt(len(x)) * np.finfo(float).eps * aw.max() / np.abs(Y).max()
+    got = float(rounding_floor(m.kernel, m.centres, 1, 0.0, m.weights, m.coeffs, jnp.asarray(Y)))
+    assert got == pytest.approx(want, rel=1e-6)
+    # accepted up to the floor, within FLOOR_TOL: a singular system's floor is no excuse
+    assert allowed_residual(0.0) == RESIDUAL_TOL
+    assert allowed_residual(8e-6) == 8e-6
+    assert allowed_residual(1e3) == FLOOR_TOL
+
+
+def test_a_mesh_of_few_vertices_and_many_open_pieces_gives_a_mesh():
+    # the beetle's .obj as it comes (1,148 vertices, 33 open pieces): it was sampled at 1,148
+    # points (as many as its vertices), fitted for its slabs by CG to a residual of 1.36e-6, and
+    # refused as nearly singular (> 1e-6) though float64 could not do better for its weights
+    # (floor 8e-6); now 10,000 samples by default, and that fit accepted
+    from jaxrbf import surface_from
+    from jaxrbf._reconstruct import MESH_MIN_POINTS, fit_surface_samples
+
+    path = data_file("beetle.obj")
+    fitted = fit_surface_samples(path, points=1148, method="dense", solver="cg")
+    assert float(fitted[0].residual) < 1e-4  # 1.36e-6 here, CG on this machine
+    assert len(fitted.shells[0]) == 1148  # every sample on an open shell
+    assert len(surface_from(path)[0]) == MESH_MIN_POINTS

@@ -337,10 +337,10 @@ def constraints_from(
 
     **Arguments:**
     - `source`: a path, or an (n, d) array of surface points (then `normals` is required).
-    - `points`: surface points to use. Default: for meshes, `DEFAULT_POINTS` samples (or
-      the vertex count, if smaller); for point clouds, all of them, or at most `DEFAULT_POINTS`
-      when `subsample` is set.
-    - `subsample`: cap a point cloud at `DEFAULT_POINTS` when `points` is not given (what the
+    - `points`: surface points to use. Default: for meshes, as many samples as vertices, within
+      `MESH_MIN_POINTS` to `MESH_MAX_POINTS`; for point clouds, all of them; either at most
+      `DEFAULT_POINTS` when `subsample` is set.
+    - `subsample`: cap the samples at `DEFAULT_POINTS` when `points` is not given (what the
       dense method wants; the scalable methods take every point).
     - `sampling`: for meshes, `faces` (uniform samples with face normals) or `vertices`
       (area-weighted vertex normals).

@@ -230,7 +230,7 @@ def _surface(
                 + (f"; {dropped:,} dropped where the copies face opposite ways" if dropped else "")
             )
             data = io.PointCloud(p, n)
-    else:
+    elif data.normals is None or mode == "estimate":
         # A bare cloud (or one whose normals are re-estimated) with repeated positions (scans
         # merged where they overlap, a file written out twice): each kept once, before anything
         # counts neighbours (the noise estimate, outlier removal, normal estimation and the

@@ -358,18 +358,29 @@ class _Crop:
         fit no longer depends on lambda's size beyond a factor (it is the crop's polynomial)."""
         return float(jnp.max(self.spectrum[0])) * self.scale**self.homogeneity
 
+    def _unit(self, lams) -> jax.Array:
+        """Lambdas in the points' units, in the crop's unit box."""
+        return jnp.asarray(np.asarray(lams, dtype=float) / self.scale**self.homogeneity)
+
     def errors(self, lams) -> np.ndarray:
-        lam = jnp.asarray(np.asarray(lams, dtype=float) / self.scale**self.homogeneity)
         err = _path_errors(
-            self.kern, self.xn, self.spectrum, lam, self.tp, self.tn, self.length, self.degree
+            self.kern,
+            self.xn,
+            self.spectrum,
+            self._unit(lams),
+            self.tp,
+            self.tn,
+            self.length,
+            self.degree,
         )
         return np.asarray(err)
 
     def residuals(self, lams) -> np.ndarray:
         """(fitted samples, candidates) distances from the samples to the fits, in the points'
         units (inf where a candidate failed)."""
-        lam = jnp.asarray(np.asarray(lams, dtype=float) / self.scale**self.homogeneity)
-        dist = _path_residuals(self.kern, self.xn, self.spectrum, lam, self.own, self.degree)
+        dist = _path_residuals(
+            self.kern, self.xn, self.spectrum, self._unit(lams), self.own, self.degree
+        )
         return np.asarray(dist) * self.scale
 
 
